@@ -1,0 +1,473 @@
+"""One collision checker over the robot, the static objects, attached objects and the occupancy octree (FCL).
+
+Each check is a vectorised broadphase in numpy (world-aligned boxes of every robot body against the octree's
+summed-volume grid, the static objects' boxes and each other) followed by FCL narrowphase calls only for
+the pairs the broadphase cannot rule out. The verdict is always FCL's: the broadphase only skips pairs
+whose boxes do not overlap, which cannot collide.
+
+Padding: the robot's bodies are inflated by `padding` for checks against the world (a polytope that contains
+every point within `padding` of the body), so `is_valid(q)` is False whenever the clearance is below `padding`.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import fcl
+import numpy as np
+
+from .errors import InvalidInputError
+from .geometry import Shape, bounding_radius, padded_geometry
+from .robot import RobotModel
+from .world import World, WorldSnapshot
+
+log = logging.getLogger(__name__)
+
+OCTREE = "octree"
+
+
+@dataclass(frozen=True)
+class Contact:
+    """Why a configuration is invalid: `body` (robot link or attached object) touches `other`."""
+
+    kind: str  # "world" (static object), "octree", "self", "limits"
+    body: str
+    other: str
+
+    def __str__(self) -> str:
+        if self.kind == "limits":
+            return f"joint {self.body} is outside its limits"
+        what = {"world": "object", "octree": "the occupancy map", "self": "link"}[self.kind]
+        return f"{self.body} collides with {what}{'' if self.kind == 'octree' else ' ' + repr(self.other)}"
+
+
+@dataclass(frozen=True)
+class Clearance:
+    """Minimum distance [m] between the robot (unpadded) and the world, and who is closest.
+
+    `distance` is capped at the query's `max_distance`; it is 0 or negative in contact.
+    """
+
+    distance: float
+    body: str | None
+    obstacle: str | None
+    point_on_robot: np.ndarray | None
+    point_on_obstacle: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class PathCheck:
+    """Result of a path check: `segment` i means between waypoints i and i+1, at `fraction` in [0, 1]."""
+
+    valid: bool
+    checked: int
+    segment: int = -1
+    fraction: float = 0.0
+    q: np.ndarray | None = None
+    contact: Contact | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class _Body:
+    name: str
+    link: str
+    link_index: int
+    T_link_body: np.ndarray
+    raw_shape: Shape
+    env: fcl.CollisionGeometry  # padded by the world padding
+    self_: fcl.CollisionGeometry  # padded by the self padding
+    raw: fcl.CollisionGeometry
+    env_box: tuple[np.ndarray, np.ndarray]
+    self_box: tuple[np.ndarray, np.ndarray]
+    raw_box: tuple[np.ndarray, np.ndarray]
+    attached: bool
+    touch: frozenset[str]
+
+
+def _ball_radius(shape: Shape, center: np.ndarray) -> float:
+    """Radius of a ball around `center` (shape frame) that contains the shape."""
+    if hasattr(shape, "vertices"):
+        return float(np.linalg.norm(shape.vertices - center, axis=1).max())
+    return bounding_radius(shape) + float(np.linalg.norm(center))
+
+
+class _Scene:
+    """Everything derived from one world version: bodies, obstacles, pair lists and masks (read-only)."""
+
+    def __init__(self, checker: CollisionChecker, snap: WorldSnapshot):
+        robot = checker.robot
+        self.version = snap.version
+        bodies: list[_Body] = []
+        for b in robot.bodies:
+            bodies.append(self._body(checker, b.link, b.link, robot.link_index(b.link), b.T_link_body,
+                                     b.shape, False, frozenset()))
+        for a in snap.attachments.values():
+            bodies.append(self._body(checker, f"attached:{a.name}", a.link, robot.link_index(a.link),
+                                     a.T_link_object, a.shape, True, a.touch_links))
+        self.bodies = bodies
+        B = len(bodies)
+        slots, offsets = zip(*(robot.frame_offset(b.link) for b in bodies))
+        self.body_slot = np.array(slots, dtype=np.int64)
+        self.body_off = np.stack([off @ b.T_link_body for off, b in zip(offsets, bodies)])  # T_frame_body
+        # local boxes, padded for the world [0] and for self checks [1]: (2, B, 3)
+        c = np.stack([np.stack([b.env_box[0] for b in bodies]), np.stack([b.self_box[0] for b in bodies])])
+        h = np.stack([np.stack([b.env_box[1] for b in bodies]), np.stack([b.self_box[1] for b in bodies])])
+        self.box_c = np.concatenate([c, np.ones(c.shape[:2] + (1,))], axis=-1)[..., None]  # homogeneous (2, B, 4, 1)
+        self.box_h = h[..., None]  # (2, B, 3, 1)
+        # bounding balls of the unpadded bodies: centre (B, 4, 1) homogeneous in the body frame, radius (B,)
+        self.ball_c = np.stack([np.append(b.raw_box[0], 1.0) for b in bodies])[..., None]
+        self.ball_r = np.array([_ball_radius(b.raw_shape, b.raw_box[0]) for b in bodies])
+
+        # static obstacles
+        self.obstacles = []
+        lo, hi = [], []
+        for o in snap.objects.values():
+            g, (c, h) = padded_geometry(o.shape, 0.0)
+            self.obstacles.append((o.name, fcl.CollisionObject(g, fcl.Transform(o.pose[:3, :3], o.pose[:3, 3]))))
+            R = o.pose[:3, :3]
+            wc, wh = R @ c + o.pose[:3, 3], np.abs(R) @ h
+            lo.append(wc - wh)
+            hi.append(wc + wh)
+        O = len(self.obstacles)
+        self.obs_lo = np.array(lo).reshape(O, 3)
+        self.obs_hi = np.array(hi).reshape(O, 3)
+        allowed = checker._allowed_contacts
+        self.env_mask = np.ones((B, O), dtype=bool)
+        self.octree_mask = np.ones(B, dtype=bool)
+        for bi, b in enumerate(bodies):
+            for oi, (oname, _) in enumerate(self.obstacles):
+                if (b.link, oname) in allowed and not b.attached:
+                    self.env_mask[bi, oi] = False
+            if (b.link, OCTREE) in allowed and not b.attached:
+                self.octree_mask[bi] = False
+
+        # self pairs: the robot's own list plus attached objects against links they may not touch
+        nr = len(robot.bodies)
+        pairs = [tuple(p) for p in robot.self_collision_pairs]
+        for ai in range(nr, B):
+            a = bodies[ai]
+            for ri in range(nr):
+                if bodies[ri].link not in a.touch and bodies[ri].link != a.link:
+                    pairs.append((ri, ai))
+        P = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        self.pair_a, self.pair_b = P[:, 0], P[:, 1]
+        # robot pairs come first, so table columns index this list directly
+        self.tables = robot.self_clearance_tables()
+        self.table_cols = self.tables.pair_index
+        box = np.ones(len(P), dtype=bool)
+        box[self.table_cols] = False
+        self.box_cols = np.flatnonzero(box)
+        self.box_a, self.box_b = self.pair_a[self.box_cols], self.pair_b[self.box_cols]
+
+        # per-joint reach of the farthest body point, for path interpolation
+        reach = np.zeros(robot.dof)
+        for b in bodies:
+            radius = bounding_radius(b.raw_shape) + float(np.linalg.norm(b.T_link_body[:3, 3]))
+            reach = np.maximum(reach, robot.reach(b.link, radius))
+        self.reach = reach
+
+    @staticmethod
+    def _body(checker, name, link, link_index, T_lb, shape, attached, touch) -> _Body:
+        env, env_box = padded_geometry(shape, checker.padding)
+        own, own_box = padded_geometry(shape, checker.robot.self_body_padding)
+        raw, raw_box = padded_geometry(shape, 0.0)
+        return _Body(name, link, link_index, np.asarray(T_lb, dtype=float), shape, env, own, raw, env_box, own_box,
+                     raw_box, attached, touch)
+
+
+class _ThreadObjects:
+    """FCL collision objects for the bodies, owned by one thread (setTransform mutates them)."""
+
+    def __init__(self, scene: _Scene):
+        self.scene = scene
+        self.env = [fcl.CollisionObject(b.env) for b in scene.bodies]
+        self.self_ = [fcl.CollisionObject(b.self_) for b in scene.bodies]
+        self.raw = [fcl.CollisionObject(b.raw) for b in scene.bodies]
+
+
+class CollisionChecker:
+    """Boolean, distance and path checks of a robot against a `World`.
+
+    Args:
+        robot: the robot model (its bodies, self-collision pairs and self padding).
+        world: static objects, attachments and the occupancy map; edits are seen by the next check.
+        padding: safety padding [m] around the robot against the world (not against itself).
+        path_resolution: max displacement [m] of any robot point between two configurations a path check tests.
+        allowed_contacts: (link, object) pairs that may touch, e.g. ("panda_link0", "table"); "octree" names
+            the occupancy map.
+        check_limits: also reject configurations outside the joint position limits.
+    """
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        world: World,
+        *,
+        padding: float = 0.01,
+        path_resolution: float = 0.01,
+        allowed_contacts: Iterable[tuple[str, str]] = (),
+        check_limits: bool = True,
+    ):
+        if world.robot is not robot:
+            raise InvalidInputError("the world was made for another robot model; build World(robot) with this one")
+        if not (0.0 <= padding < 1.0):
+            raise InvalidInputError(f"padding must be in [0, 1) m, got {padding}")
+        if not (0.0 < path_resolution <= 1.0):
+            raise InvalidInputError(f"path_resolution must be in (0, 1] m, got {path_resolution}")
+        self.robot = robot
+        self.world = world
+        self.padding = float(padding)
+        self.path_resolution = float(path_resolution)
+        self.check_limits = check_limits
+        allowed = set()
+        for link, obj in allowed_contacts:
+            robot.link_index(link)
+            allowed.add((link, obj))
+        self._allowed_contacts = frozenset(allowed)
+        self._scene: _Scene | None = None
+        self._scene_lock = threading.Lock()
+        self._local = threading.local()
+        self._octree_obj: tuple[object, fcl.CollisionObject] | None = None
+        self._request = fcl.CollisionRequest()
+        self._dist_request = fcl.DistanceRequest(enable_nearest_points=True, enable_signed_distance=True)
+
+    @classmethod
+    def from_config(cls, robot: RobotModel, world: World, cfg) -> CollisionChecker:
+        """Build from a validated `collision` config section."""
+        return cls(robot, world, padding=cfg.padding, path_resolution=cfg.path_resolution,
+                   allowed_contacts=cfg.allowed_contacts)
+
+    # ------------------------------------------------------------------ caches
+    def _current(self) -> tuple[WorldSnapshot, _Scene, _ThreadObjects, fcl.CollisionObject | None]:
+        snap = self.world.snapshot()
+        scene = self._scene
+        if scene is None or scene.version != snap.version:
+            with self._scene_lock:
+                scene = self._scene
+                if scene is None or scene.version != snap.version:
+                    scene = _Scene(self, snap)
+                    self._scene = scene
+        objs = getattr(self._local, "objs", None)
+        if objs is None or objs.scene is not scene:
+            objs = _ThreadObjects(scene)
+            self._local.objs = objs
+        occ = snap.occupancy
+        octree = None
+        if occ is not None and len(occ):
+            cached = self._octree_obj
+            if cached is None or cached[0] is not occ:
+                cached = (occ, fcl.CollisionObject(occ.tree, fcl.Transform()))
+                self._octree_obj = cached
+            octree = cached[1]
+        return snap, scene, objs, octree
+
+    # ------------------------------------------------------------------ broadphase
+    def _body_poses(self, scene: _Scene, Q: np.ndarray) -> np.ndarray:
+        """Body poses (N, B, 4, 4) for configurations Q (N, dof)."""
+        return self.robot.frames(Q)[:, scene.body_slot] @ scene.body_off
+
+    @staticmethod
+    def _aabbs(T: np.ndarray, c: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World-aligned boxes (N, K, B, 3) of local boxes (K, B, 4, 1) centres, (K, B, 3, 1) halves at poses T (N, B, 4, 4)."""
+        center = (T[:, None] @ c)[..., :3, 0]
+        half = (np.abs(T[:, None, :, :3, :3]) @ h)[..., 0]
+        return center - half, center + half
+
+    def _candidates(self, snap, scene: _Scene, Q: np.ndarray, T: np.ndarray):
+        """Boolean masks of pairs the narrowphase must test: octree (N, B), objects (N, B, O), self (N, P)."""
+        lo, hi = self._aabbs(T, scene.box_c, scene.box_h)
+        elo, ehi = lo[:, 0], hi[:, 0]
+        occ = snap.occupancy
+        if occ is not None and len(occ):
+            cand_oct = occ.any_in_boxes(elo, ehi) & scene.octree_mask
+        else:
+            cand_oct = np.zeros(elo.shape[:2], dtype=bool)
+        if len(scene.obstacles):
+            cand_obj = (
+                np.all(elo[:, :, None] <= scene.obs_hi, axis=-1)
+                & np.all(ehi[:, :, None] >= scene.obs_lo, axis=-1)
+                & scene.env_mask
+            )
+        else:
+            cand_obj = np.zeros(elo.shape[:2] + (0,), dtype=bool)
+        cand_self = np.zeros((len(T), len(scene.pair_a)), dtype=bool)
+        if len(scene.table_cols):
+            cand_self[:, scene.table_cols] = scene.tables.may_collide(Q)
+        if len(scene.box_cols):
+            slo, shi = lo[:, 1], hi[:, 1]
+            a, b = scene.box_a, scene.box_b
+            cand_self[:, scene.box_cols] = np.all(slo[:, a] <= shi[:, b], axis=-1) & np.all(shi[:, a] >= slo[:, b], axis=-1)
+        return cand_oct, cand_obj, cand_self
+
+    # ------------------------------------------------------------------ narrowphase
+    def _narrow(self, scene, objs, octree, T_n, oct_n, obj_n, self_n) -> Contact | None:
+        """FCL tests for one configuration; returns the first contact found."""
+        req = self._request
+        collide = fcl.collide
+        placed: set[tuple[int, int]] = set()
+
+        def place(group, bi):
+            if (id(group), bi) not in placed:
+                Tb = T_n[bi]
+                group[bi].setTransform(fcl.Transform(Tb[:3, :3], Tb[:3, 3]))
+                placed.add((id(group), bi))
+            return group[bi]
+
+        bodies = scene.bodies
+        for bi in np.flatnonzero(oct_n):
+            if collide(place(objs.env, bi), octree, req):
+                return Contact("octree", bodies[bi].name, OCTREE)
+        if obj_n.size:
+            for bi, oi in zip(*np.nonzero(obj_n)):
+                name, obj = scene.obstacles[oi]
+                if collide(place(objs.env, bi), obj, req):
+                    return Contact("world", bodies[bi].name, name)
+        for pi in np.flatnonzero(self_n):
+            a, b = scene.pair_a[pi], scene.pair_b[pi]
+            if collide(place(objs.self_, a), place(objs.self_, b), req):
+                return Contact("self", bodies[a].name, bodies[b].name)
+        return None
+
+    def _limits_contact(self, q: np.ndarray) -> Contact | None:
+        lim = self.robot.limits
+        bad = np.flatnonzero((q < lim.lower - 1e-9) | (q > lim.upper + 1e-9))
+        return Contact("limits", self.robot.joint_names[bad[0]], "") if len(bad) else None
+
+    def _first_invalid(self, Q: np.ndarray, stop_at_first: bool) -> tuple[np.ndarray, list[Contact | None]]:
+        """Validity (N,) of configurations Q (N, dof); contacts of the invalid ones (None where valid)."""
+        snap, scene, objs, octree = self._current()
+        N = len(Q)
+        valid = np.ones(N, dtype=bool)
+        contacts: list[Contact | None] = [None] * N
+        if self.check_limits:
+            lim = self.robot.limits
+            valid &= np.all((Q >= lim.lower - 1e-9) & (Q <= lim.upper + 1e-9), axis=1)
+        T = self._body_poses(scene, Q)
+        cand_oct, cand_obj, cand_self = self._candidates(snap, scene, Q, T)
+        busy = cand_oct.any(axis=1) | cand_obj.reshape(N, -1).any(axis=1) | cand_self.any(axis=1)
+        for n in range(N):
+            if not valid[n]:
+                contacts[n] = self._limits_contact(Q[n])
+                if stop_at_first:
+                    break
+                continue
+            if not busy[n]:
+                continue
+            c = self._narrow(scene, objs, octree, T[n], cand_oct[n], cand_obj[n], cand_self[n])
+            if c is not None:
+                valid[n] = False
+                contacts[n] = c
+                if stop_at_first:
+                    break
+        return valid, contacts
+
+    # ------------------------------------------------------------------ public API
+    def is_valid(self, q) -> bool:
+        """True if q [rad] is within limits and collision-free with `padding` against the world."""
+        Q = self.robot.check_q(q).reshape(1, -1)
+        valid, _ = self._first_invalid(Q, True)
+        return bool(valid[0])
+
+    def check(self, q) -> Contact | None:
+        """None if q is valid, else the first contact found (which link touches what)."""
+        Q = self.robot.check_q(q).reshape(1, -1)
+        _, contacts = self._first_invalid(Q, True)
+        return contacts[0]
+
+    def is_valid_batch(self, Q) -> np.ndarray:
+        """Validity (N,) of configurations Q (N, dof)."""
+        Q = self.robot.check_q(Q)
+        if Q.ndim != 2:
+            raise InvalidInputError(f"Q must be (N, {self.robot.dof}), got shape {Q.shape}")
+        valid, _ = self._first_invalid(Q, False)
+        return valid
+
+    def clearance(self, q, max_distance: float = 1.0) -> Clearance:
+        """Minimum distance [m] from the unpadded robot (and attached objects) to static objects and the octree.
+
+        Obstacles farther than `max_distance` [m] are ignored (the result is then capped at it).
+        """
+        q = self.robot.check_q(q)
+        if q.ndim != 1:
+            raise InvalidInputError("clearance takes one configuration (dof,)")
+        snap, scene, objs, octree = self._current()
+        T = self._body_poses(scene, q.reshape(1, -1))[0]
+        best = (float(max_distance), None, None, None, None)
+        lo, hi = self._aabbs(T[None], scene.box_c, scene.box_h)
+        lo, hi = lo[0, 1] - max_distance, hi[0, 1] + max_distance
+        req = self._dist_request
+
+        def measure(bi, other, name):
+            nonlocal best
+            o = objs.raw[bi]
+            Tb = T[bi]
+            o.setTransform(fcl.Transform(Tb[:3, :3], Tb[:3, 3]))
+            res = fcl.DistanceResult()
+            d = fcl.distance(o, other, req, res)
+            if d < best[0]:
+                best = (float(d), scene.bodies[bi].name, name, res.nearest_points[0], res.nearest_points[1])
+
+        for oi, (name, obj) in enumerate(scene.obstacles):
+            near = np.all(lo <= scene.obs_hi[oi], axis=1) & np.all(hi >= scene.obs_lo[oi], axis=1)
+            for bi in np.flatnonzero(near & scene.env_mask[:, oi]):
+                measure(bi, obj, name)
+        if octree is not None:
+            occ = snap.occupancy
+            near = np.flatnonzero(occ.any_in_boxes(lo, hi) & scene.octree_mask)
+            if len(near):
+                # lower bound per body: nearest voxel centre to its bounding ball, minus ball and half voxel diagonal
+                centers = (T[near] @ scene.ball_c[near])[:, :3, 0]
+                gap, _ = occ.kdtree.query(centers, distance_upper_bound=best[0] + scene.ball_r[near].max() + occ.resolution)
+                bound = gap - scene.ball_r[near] - occ.resolution * np.sqrt(3) / 2
+                for k in np.argsort(bound):
+                    if bound[k] >= best[0]:
+                        break  # no remaining body can be closer than the best found
+                    measure(near[k], octree, OCTREE)
+        d, body, obstacle, pa, pb = best
+        return Clearance(d, body, obstacle, pa, pb)
+
+    def interpolate(self, waypoints, resolution: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Dense configurations along straight joint-space segments so no robot point moves more than `resolution`.
+
+        Returns (Q (M, dof), segment_position (M,)) where segment_position = i + fraction along segment i.
+        """
+        W = self.robot.check_q(waypoints, "waypoints")
+        if W.ndim != 2 or len(W) < 1:
+            raise InvalidInputError(f"waypoints must be (M>=1, {self.robot.dof}), got shape {W.shape}")
+        res = self.path_resolution if resolution is None else float(resolution)
+        _, scene, _, _ = self._current()
+        if len(W) == 1:
+            return W.copy(), np.zeros(1)
+        dW = np.diff(W, axis=0)
+        steps = np.maximum(1, np.ceil(np.abs(dW) @ scene.reach / res).astype(np.int64))
+        seg = np.repeat(np.arange(len(dW)), steps)
+        frac = np.concatenate([np.arange(s) / s for s in steps])
+        Q = W[seg] + frac[:, None] * dW[seg]
+        Q = np.vstack([Q, W[-1:]])
+        pos = np.concatenate([seg + frac, [len(dW)]])
+        return Q, pos
+
+    def check_path(self, waypoints, resolution: float | None = None, chunk: int = 128) -> PathCheck:
+        """Check straight joint-space segments between waypoints; report the first colliding configuration."""
+        Q, pos = self.interpolate(waypoints, resolution)
+        for start in range(0, len(Q), chunk):
+            valid, contacts = self._first_invalid(Q[start : start + chunk], True)
+            bad = np.flatnonzero(~valid)
+            if len(bad):
+                i = start + int(bad[0])
+                seg = min(int(pos[i]), len(waypoints) - 2) if len(Q) > 1 else 0
+                return PathCheck(False, i + 1, seg, float(pos[i] - seg), Q[i].copy(), contacts[int(bad[0])])
+        return PathCheck(True, len(Q))
+
+    def allowed_contact_names(self) -> list[str]:
+        return [f"{a}/{b}" for a, b in sorted(self._allowed_contacts)]
+
+    def set_padding(self, padding: float) -> None:
+        """Change the world padding [m]; geometry is rebuilt on the next check."""
+        if not (0.0 <= padding < 1.0):
+            raise InvalidInputError(f"padding must be in [0, 1) m, got {padding}")
+        self.padding = float(padding)
+        self._scene = None

@@ -1,0 +1,180 @@
+"""Precomputed self-clearance tables for body pairs whose relative pose depends on at most two joints.
+
+Neighbouring links (link5 and link7 of a Panda, say) are always close, so box tests never rule them out and
+every check would pay for FCL calls. Their relative pose is a function of one or two joint angles, so their
+clearance is tabulated once on a grid (FCL distance) and looked up with a Lipschitz bound:
+
+    clearance(q) >= table(q_grid) - sum_k reach_k * |q_k - q_grid_k|
+
+When that bound is positive the pair is certainly apart; otherwise FCL decides. Tables are cached on disk.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+from pathlib import Path
+
+import fcl
+import numpy as np
+
+from .geometry import bounding_radius, padded, to_fcl
+
+log = logging.getLogger(__name__)
+
+_FORMAT = 3
+DEFAULT_STEP = np.deg2rad(2.0)
+MAX_POINTS = 256
+
+
+def default_cache_dir() -> Path:
+    root = os.environ.get("REPLANNER_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "replanner"
+    )
+    return Path(root)
+
+
+class SelfClearanceTables:
+    """Clearance tables for a subset of a robot's self-collision pairs.
+
+    Args:
+        robot: the robot model.
+        pairs: (P, 2) body index pairs (indices into robot.bodies), e.g. robot.self_collision_pairs.
+        step: grid step [rad] per joint (coarser for long ranges so no axis has more than MAX_POINTS).
+        cache_dir: where tables are cached; None disables the cache.
+    """
+
+    def __init__(self, robot, pairs: np.ndarray, step: float = DEFAULT_STEP, cache_dir: Path | None = None):
+        self.robot = robot
+        rows = []
+        for pi, (a, b) in enumerate(np.asarray(pairs).reshape(-1, 2)):
+            joints = self._joints_between(robot, int(a), int(b))
+            if joints is not None and 1 <= len(joints) <= 2 and not robot._prismatic[joints].any():
+                rows.append((pi, int(a), int(b), joints))
+        self.pair_index = np.array([r[0] for r in rows], dtype=np.int64)
+        P = len(rows)
+        lim = robot.limits
+        j0 = np.array([r[3][0] for r in rows], dtype=np.int64)
+        j1 = np.array([r[3][1] if len(r[3]) > 1 else r[3][0] for r in rows], dtype=np.int64)
+        two = np.array([len(r[3]) > 1 for r in rows], dtype=bool)
+        span0 = lim.upper[j0] - lim.lower[j0]
+        span1 = np.where(two, lim.upper[j1] - lim.lower[j1], 0.0)
+        n0 = np.minimum(MAX_POINTS, np.ceil(span0 / step).astype(np.int64) + 1)
+        n1 = np.where(two, np.minimum(MAX_POINTS, np.ceil(span1 / step).astype(np.int64) + 1), 1)
+        self.j0, self.j1, self.two = j0, j1, two
+        self.lo0, self.lo1 = lim.lower[j0], np.where(two, lim.lower[j1], 0.0)
+        self.step0 = span0 / np.maximum(n0 - 1, 1)
+        self.step1 = np.where(two, span1 / np.maximum(n1 - 1, 1), 1.0)
+        self.n0, self.n1 = n0, n1
+        self.offset = np.concatenate([[0], np.cumsum(n0 * n1)[:-1]]).astype(np.int64) if P else np.zeros(0, np.int64)
+        # Lipschitz constants: how far either body can move relative to the other per radian of each joint
+        r0, r1 = np.zeros(P), np.zeros(P)
+        for i, (_, a, b, joints) in enumerate(rows):
+            ra = self._reach(robot, a)
+            rb = self._reach(robot, b)
+            r = np.maximum(ra, rb)
+            r0[i] = r[joints[0]]
+            r1[i] = r[joints[1]] if len(joints) > 1 else 0.0
+        self.r0, self.r1 = r0, r1
+        self.table = self._load_or_build(rows, cache_dir)
+        # both joints of every pair side by side: columns [0, P) first joint, [P, 2P) second
+        self._J = np.concatenate([j0, j1])
+        self._LO = np.concatenate([self.lo0, self.lo1])
+        self._STEP = np.concatenate([self.step0, self.step1])
+        self._NMAX = np.concatenate([n0 - 1, n1 - 1]).astype(np.float64)
+        eye = np.eye(P)
+        self._W = np.vstack([eye * n1, eye]).astype(np.int64)  # flat index = i0 * n1 + i1
+        self._R = np.vstack([eye * (r0 * self.step0), eye * (r1 * self.step1)])  # slack per grid unit
+        for arr in (self._J, self._LO, self._STEP, self._NMAX, self._W, self._R, self.j0, self.j1, self.lo0, self.lo1, self.step0, self.step1, self.n0, self.n1, self.offset,
+                    self.r0, self.r1, self.table):
+            arr.setflags(write=False)
+
+    @staticmethod
+    def _reach(robot, bi: int) -> np.ndarray:
+        body = robot.bodies[bi]
+        radius = bounding_radius(body.shape) + float(np.linalg.norm(body.T_link_body[:3, 3])) + robot.self_body_padding
+        return robot.reach(body.link, radius)
+
+    @staticmethod
+    def _joints_between(robot, a: int, b: int) -> np.ndarray | None:
+        ka = robot.link_frame_index(robot.bodies[a].link)
+        kb = robot.link_frame_index(robot.bodies[b].link)
+        anc_a = robot._frame_anc[ka] if ka >= 0 else np.zeros(robot.dof, bool)
+        anc_b = robot._frame_anc[kb] if kb >= 0 else np.zeros(robot.dof, bool)
+        return np.flatnonzero(anc_a ^ anc_b)
+
+    def _key(self, rows) -> str:
+        r = self.robot
+        h = hashlib.sha256()
+        h.update(f"{_FORMAT}|{r.self_padding!r}|".encode())
+        for arr in (r._F, r._link_offset, self.n0, self.n1, self.lo0, self.lo1, self.step0, self.step1):
+            h.update(np.ascontiguousarray(arr).tobytes())
+        h.update(repr(sorted(r.passive_joint_positions.items())).encode())
+        for _, a, b, joints in rows:
+            for bi in (a, b):
+                body = r.bodies[bi]
+                h.update(body.link.encode())
+                h.update(np.ascontiguousarray(body.T_link_body).tobytes())
+                h.update(repr(body.shape if not hasattr(body.shape, "vertices") else body.shape.vertices.tobytes()).encode())
+            h.update(np.asarray(joints).tobytes())
+        return h.hexdigest()[:24]
+
+    def _load_or_build(self, rows, cache_dir: Path | None) -> np.ndarray:
+        if not rows:
+            return np.zeros(0)
+        key = self._key(rows)
+        path = None if cache_dir is None else Path(cache_dir) / f"selfclearance-{self.robot.name}-{key}.npy"
+        if path is not None and path.is_file():
+            try:
+                table = np.load(path, allow_pickle=False)
+                if table.shape == (int((self.n0 * self.n1).sum()),):
+                    return table
+            except (OSError, ValueError):
+                log.warning("ignoring unreadable self-clearance cache %s", path)
+        table = self._build(rows)
+        if path is not None:
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                tmp = path.with_suffix(f".{os.getpid()}.tmp.npy")
+                np.save(tmp, table)
+                os.replace(tmp, path)
+            except OSError as err:
+                log.warning("cannot write self-clearance cache %s: %s", path, err)
+        return table
+
+    def _build(self, rows) -> np.ndarray:
+        r = self.robot
+        out = []
+        req = fcl.DistanceRequest()
+        for i, (_, a, b, _) in enumerate(rows):
+            ga = fcl.CollisionObject(to_fcl(padded(r.bodies[a].shape, r.self_body_padding)))
+            gb = fcl.CollisionObject(to_fcl(padded(r.bodies[b].shape, r.self_body_padding)))
+            g0 = self.lo0[i] + self.step0[i] * np.arange(self.n0[i])
+            g1 = self.lo1[i] + self.step1[i] * np.arange(self.n1[i])
+            Q = np.tile(r.home, (len(g0) * len(g1), 1))
+            Q[:, self.j0[i]] = np.repeat(g0, len(g1))
+            if self.two[i]:
+                Q[:, self.j1[i]] = np.tile(g1, len(g0))
+            T = r.fk(Q)
+            Ta = T[:, r.link_index(r.bodies[a].link)] @ r.bodies[a].T_link_body
+            Tb = T[:, r.link_index(r.bodies[b].link)] @ r.bodies[b].T_link_body
+            d = np.empty(len(Q))
+            for n in range(len(Q)):
+                ga.setTransform(fcl.Transform(Ta[n, :3, :3], Ta[n, :3, 3]))
+                gb.setTransform(fcl.Transform(Tb[n, :3, :3], Tb[n, :3, 3]))
+                d[n] = fcl.distance(ga, gb, req)
+            out.append(np.maximum(d, 0.0))  # in contact: 0 (fcl may report -1)
+        return np.concatenate(out)
+
+    def __len__(self) -> int:
+        return len(self.pair_index)
+
+    def may_collide(self, Q: np.ndarray) -> np.ndarray:
+        """(N, P_table) True where the tabulated pair may be in contact at configurations Q (N, dof)."""
+        P = len(self.pair_index)
+        u = (Q[:, self._J] - self._LO) / self._STEP
+        i = np.clip(np.rint(u), 0, self._NMAX)
+        idx = i.astype(np.int64) @ self._W + self.offset
+        slack = np.abs(u - i) @ self._R if P else np.zeros((len(Q), 0))
+        return self.table[idx] <= slack

@@ -1,0 +1,304 @@
+"""Collision verdicts, distances and path checks against pybullet and against brute-force FCL."""
+
+from __future__ import annotations
+
+import fcl
+import numpy as np
+import pytest
+
+from replanner.bench.scenes import add_table, clutter_map
+from replanner.collision import OCTREE, CollisionChecker
+from replanner.geometry import Box, Cylinder, Sphere, to_fcl
+from replanner.transforms import make_transform
+from replanner.world import World
+
+from .oracle import HULL_MARGIN, PyBulletOracle
+
+PANDA_FOLDED = [0.0, 0.18, 0.02, -3.03, -0.63, 0.15, 0.8]  # elbow folded: the hand is inside link 1/2
+
+
+def _random_boxes(rng, k):
+    for i in range(k):
+        size = tuple(rng.uniform(0.05, 0.3, 3))
+        pose = make_transform(rng.uniform([-0.7, -0.7, 0.0], [0.8, 0.7, 1.0]), rng.normal(size=4))
+        yield f"box{i}", Box(size), pose
+
+
+def test_pybullet_hull_margin_is_what_the_oracle_assumes(panda):
+    """FCL distance between the model's hulls minus pybullet's distance: pybullet's 1 mm margin per hull."""
+    oracle = PyBulletOracle(panda)
+    box, pose = Box((0.2, 0.2, 0.2)), make_transform((0.5, 0.0, 0.4))
+    body = oracle.add("b", box, pose)
+    ref = fcl.CollisionObject(to_fcl(box), fcl.Transform(pose[:3, :3], pose[:3, 3]))
+    import pybullet as pb
+
+    diffs = []
+    for q in panda.random_q(np.random.default_rng(0), 100):
+        oracle.set_q(q)
+        T = panda.fk(q)
+        for b in panda.bodies:
+            Tb = T[panda.link_index(b.link)] @ b.T_link_body
+            obj = fcl.CollisionObject(to_fcl(b.shape), fcl.Transform(Tb[:3, :3], Tb[:3, 3]))
+            d = fcl.distance(obj, ref, fcl.DistanceRequest())
+            pts = pb.getClosestPoints(oracle.body, body, 0.3, linkIndexA=oracle.link_id[b.link],
+                                      physicsClientId=oracle.cid)
+            if pts and d > 0.002:
+                diffs.append(d - min(c[8] for c in pts))
+    oracle.close()
+    diffs = np.array(diffs)
+    assert len(diffs) > 100
+    assert diffs.min() >= 0.0 and diffs.max() <= HULL_MARGIN * 1.1
+
+
+def test_verdicts_agree_with_pybullet_over_2000_configurations(profile):
+    cfg, robot = profile
+    world = World(robot)
+    add_table(world)
+    checker = CollisionChecker.from_config(robot, world, cfg.collision)
+    oracle = PyBulletOracle(robot)
+    oracle.add("table", world.objects["table"].shape, world.objects["table"].pose)
+    allowed = set(cfg.collision.allowed_contacts)
+    pairs = sorted({(robot.bodies[a].link, robot.bodies[b].link) for a, b in robot.self_collision_pairs})
+    rng = np.random.default_rng(11)
+    n = unsafe = mismatch = invalid = 0
+    for _scene in range(10):
+        for name, shape, pose in _random_boxes(rng, 5):
+            if name in world.objects:
+                world.remove(name)
+                import pybullet as pb
+
+                pb.removeBody(oracle.obstacles.pop(name), physicsClientId=oracle.cid)
+            world.add(name, shape, pose)
+            oracle.add(name, shape, pose)
+        for q in robot.random_q(rng, 200):
+            oracle.set_q(q)
+            ours_invalid = not checker.is_valid(q)
+            d_world = oracle.min_world_distance(checker.padding + 0.02, allowed)
+            d_self, _ = oracle.min_self_distance(pairs, robot.self_padding + 0.02)
+            # pybullet's raw distances: any penetration there must be invalid here
+            if not ours_invalid and (d_world < 0 or d_self < 0):
+                unsafe += 1
+            # same geometry, same thresholds: correct pybullet's hull margins
+            ref_invalid = d_world + HULL_MARGIN < checker.padding or d_self + 2 * HULL_MARGIN < robot.self_padding
+            mismatch += ours_invalid != ref_invalid
+            invalid += ours_invalid
+            n += 1
+    oracle.close()
+    print(f"{robot.name}: {n} configurations, {invalid} invalid, {mismatch} disagreements "
+          f"({100 * mismatch / n:.2f} %), {unsafe} free-where-pybullet-penetrates")
+    assert n >= 2000
+    assert 0.1 * n < invalid < 0.9 * n  # the scenes really test both outcomes
+    assert unsafe == 0
+    assert mismatch <= 0.01 * n
+
+
+def _brute_force_invalid(checker: CollisionChecker, q) -> bool:
+    """Every pair through FCL, no broadphase, no tables: the reference for the checker's shortcuts."""
+    snap, scene, objs, octree = checker._current()
+    lim = checker.robot.limits
+    if np.any(q < lim.lower) or np.any(q > lim.upper):
+        return True
+    T = checker._body_poses(scene, q[None])[0]
+    env, own = [], []
+    for bi, b in enumerate(scene.bodies):
+        tf = fcl.Transform(T[bi][:3, :3], T[bi][:3, 3])
+        env.append(fcl.CollisionObject(b.env, tf))
+        own.append(fcl.CollisionObject(b.self_, tf))
+    for bi in range(len(scene.bodies)):
+        for oi, (_, obj) in enumerate(scene.obstacles):
+            if scene.env_mask[bi, oi] and fcl.collide(env[bi], obj, fcl.CollisionRequest()):
+                return True
+        if octree is not None and scene.octree_mask[bi] and fcl.collide(env[bi], octree, fcl.CollisionRequest()):
+            return True
+    for a, b in zip(scene.pair_a, scene.pair_b):
+        if fcl.collide(own[a], own[b], fcl.CollisionRequest()):
+            return True
+    return False
+
+
+def test_broadphase_and_tables_never_change_a_verdict(panda, panda_cfg):
+    world = World(panda)
+    add_table(world)
+    rng = np.random.default_rng(5)
+    for name, shape, pose in _random_boxes(rng, 4):
+        world.add(name, shape, pose)
+    world.attach_new("part", Box((0.06, 0.06, 0.12)), "panda_hand", make_transform((0, 0, 0.16)))
+    world.set_occupancy(clutter_map(rng, 20_000))
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    Q = panda.random_q(rng, 1500)
+    # half of them near the folded pose, where self pairs are close
+    Q[::2] = np.clip(np.array(PANDA_FOLDED) + rng.normal(0, 0.25, (len(Q[::2]), 7)), panda.limits.lower,
+                     panda.limits.upper)
+    batch = checker.is_valid_batch(Q)
+    ref = np.array([not _brute_force_invalid(checker, q) for q in Q])
+    single = np.array([checker.is_valid(q) for q in Q])
+    assert 0.1 < ref.mean() < 0.9
+    np.testing.assert_array_equal(batch, ref)
+    np.testing.assert_array_equal(single, ref)
+
+
+def test_self_collision_folded_is_invalid_home_is_valid(profile):
+    cfg, robot = profile
+    checker = CollisionChecker.from_config(robot, World(robot), cfg.collision)
+    oracle = PyBulletOracle(robot)
+    pairs = sorted({(robot.bodies[a].link, robot.bodies[b].link) for a, b in robot.self_collision_pairs})
+    assert checker.check(robot.home) is None
+    oracle.set_q(robot.home)
+    assert oracle.min_self_distance(pairs, 0.05)[0] > 0
+    folded = PANDA_FOLDED if robot.name == "panda" else [-0.55, 2.08, 0.01, -2.09, 1.13, -1.56, 0.52]
+    contact = checker.check(folded)
+    assert contact is not None and contact.kind == "self", contact
+    oracle.set_q(folded)
+    d, who = oracle.min_self_distance(pairs, 0.05)
+    oracle.close()
+    assert d < -0.01, (d, who)  # pybullet agrees: the arm penetrates itself
+
+
+def test_attached_box_moves_with_the_hand_and_hits_the_table(panda, panda_cfg):
+    world = World(panda)
+    add_table(world)
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    q_high = panda.home.copy()  # the hand points down, the grasp point ~0.48 m above the table
+    assert panda.link_pose(q_high, "panda_grasptarget")[2, 3] > 0.4
+    part = Box((0.05, 0.05, 0.30))  # a long part held in the gripper, sticking out 0.2 m below the fingertips
+    world.add("part", part, panda.link_pose(q_high, "panda_grasptarget") @ make_transform((0, 0, 0.1)))
+    world.attach("part", "panda_grasptarget", q_high)
+    assert checker.check(q_high) is None  # held between the fingers: the hand may touch it
+    # lower the grasp point straight down (resolved rate) until the part, not the hand, reaches the table
+    robot_only = CollisionChecker.from_config(panda, _without(world, "part"), panda_cfg.collision)
+    q, lowered = q_high.copy(), None
+    for _ in range(60):
+        J = panda.jacobian(q, "panda_grasptarget")
+        q = q + np.linalg.pinv(J) @ np.array([0, 0, -0.01, 0, 0, 0])
+        if robot_only.is_valid(q) and not checker.is_valid(q):
+            lowered = q
+            break
+    assert lowered is not None
+    contact = checker.check(lowered)
+    assert contact.kind == "world" and contact.body == "attached:part" and contact.other == "table"
+    # the part followed the hand: pybullet puts a box at the same place and finds it in the table
+    oracle = PyBulletOracle(panda)
+    table = oracle.add("table", world.objects["table"].shape, world.objects["table"].pose)
+    att = world.attachments["part"]
+    pose = panda.link_pose(lowered, att.link) @ att.T_link_object
+    box = oracle.add("part", part, pose)
+    assert oracle.distance_between(box, table) < checker.padding
+    oracle.close()
+    world.detach("part", lowered)
+    np.testing.assert_allclose(world.objects["part"].pose, pose, atol=1e-12)
+
+
+def _without(world: World, name: str) -> World:
+    copy = World(world.robot)
+    for obj in world.objects.values():
+        copy.add(obj.name, obj.shape, obj.pose)
+    for att in world.attachments.values():
+        if att.name != name:
+            copy.attach_new(att.name, att.shape, att.link, att.T_link_object, att.touch_links)
+    return copy
+
+
+def test_path_check_finds_an_obstacle_between_far_apart_waypoints(panda, panda_cfg):
+    world = World(panda)
+    add_table(world)
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    a = np.array([-1.5, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
+    b = a.copy()
+    b[0] = 1.5  # a 3 rad swing of the first joint
+    assert checker.is_valid(a) and checker.is_valid(b)
+    assert checker.check_path([a, b]).valid
+    # a thin pillar on the arc swept by the hand, between the two ends
+    tip = panda.link_pose(np.where(np.arange(7) == 0, 0.2, a), "panda_hand")[:3, 3]
+    world.add("pillar", Cylinder(0.02, 1.0), make_transform((tip[0], tip[1], 0.5)))
+    assert checker.is_valid(a) and checker.is_valid(b)
+    result = checker.check_path([a, b])
+    assert not result.valid
+    assert result.segment == 0 and 0.0 < result.fraction < 1.0
+    assert result.contact.other == "pillar"
+    assert not checker.is_valid(result.q)
+    # the reported point is the first one: a bit earlier on the segment is free
+    earlier = a + (result.fraction - 0.01) * (b - a)
+    assert checker.is_valid(earlier)
+
+
+def test_interpolation_bounds_the_motion_of_every_robot_point(panda):
+    world = World(panda)
+    world.attach_new("part", Box((0.05, 0.05, 0.3)), "panda_hand", make_transform((0, 0, 0.2)))
+    checker = CollisionChecker(panda, world, padding=0.0, path_resolution=0.02)
+    rng = np.random.default_rng(9)
+    W = panda.random_q(rng, 6)
+    Q, pos = checker.interpolate(W)
+    assert np.all(np.diff(pos) > 0) and pos[-1] == len(W) - 1
+    snap, scene, _, _ = checker._current()
+    T = checker._body_poses(scene, Q)
+    worst = 0.0
+    for bi, b in enumerate(scene.bodies):
+        shape = b.raw_shape
+        pts = shape.vertices if hasattr(shape, "vertices") else _box_corners(shape)
+        world_pts = T[:, bi, :3, :3] @ pts.T + T[:, bi, :3, 3:4]
+        step = np.linalg.norm(np.diff(world_pts, axis=0), axis=1).max()
+        worst = max(worst, float(step))
+    assert worst <= 0.02
+
+
+def _box_corners(shape):
+    h = np.asarray(shape.size) / 2
+    return np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * h
+
+
+def test_clearance_matches_pybullet(panda):
+    world = World(panda)
+    rng = np.random.default_rng(4)
+    oracle = PyBulletOracle(panda)
+    for name, shape, pose in _random_boxes(rng, 3):
+        world.add(name, shape, pose)
+        oracle.add(name, shape, pose)
+    world.add("ball", Sphere(0.08), make_transform((0.4, 0.3, 0.5)))
+    oracle.add("ball", Sphere(0.08), make_transform((0.4, 0.3, 0.5)))
+    checker = CollisionChecker(panda, world, padding=0.0)
+    checked = 0
+    for q in panda.random_q(rng, 300):
+        c = checker.clearance(q, max_distance=0.5)
+        oracle.set_q(q)
+        ref = oracle.min_world_distance(0.5)
+        if ref >= 0.5 - 0.002 or ref < 0:
+            continue
+        assert c.distance == pytest.approx(ref + HULL_MARGIN, abs=HULL_MARGIN)
+        # the nearest points are on the surfaces: the obstacle point is that far from the robot point
+        assert np.linalg.norm(c.point_on_robot - c.point_on_obstacle) == pytest.approx(c.distance, abs=1e-6)
+        checked += 1
+    oracle.close()
+    assert checked > 50
+
+
+def test_clearance_reports_the_closest_link_and_the_octree(panda):
+    world = World(panda)
+    q = panda.home
+    hand = panda.link_pose(q, "panda_hand")[:3, 3]
+    # a blob of voxels 10 cm below the hand
+    from replanner.occupancy import OccupancyMap
+
+    pts = hand + np.array([0, 0, -0.20]) + np.random.default_rng(0).uniform(-0.02, 0.02, (200, 3))
+    world.set_occupancy(OccupancyMap.from_points(pts, 0.01))
+    checker = CollisionChecker(panda, world, padding=0.0)
+    c = checker.clearance(q)
+    assert c.obstacle == OCTREE
+    assert c.body in ("panda_leftfinger", "panda_rightfinger", "panda_hand")
+    assert 0.0 < c.distance < 0.15
+
+
+def test_clearance_pruning_equals_brute_force(panda):
+    """The octree distance skips bodies by a lower bound; the answer must equal FCL over every body."""
+    world = World(panda)
+    rng = np.random.default_rng(8)
+    world.set_occupancy(clutter_map(rng, 8000))
+    checker = CollisionChecker(panda, world, padding=0.0)
+    snap, scene, objs, octree = checker._current()
+    for q in panda.random_q(rng, 40):
+        got = checker.clearance(q, max_distance=1.0)
+        T = checker._body_poses(scene, q[None])[0]
+        ref = 1.0
+        for bi, b in enumerate(scene.bodies):
+            obj = fcl.CollisionObject(b.raw, fcl.Transform(T[bi][:3, :3], T[bi][:3, 3]))
+            ref = min(ref, fcl.distance(obj, octree, fcl.DistanceRequest()))
+        assert got.distance == pytest.approx(ref, abs=1e-9)

@@ -1,0 +1,40 @@
+"""The README's promises: its Python snippets run, its commands exist, the Docker image's sources exist."""
+
+from __future__ import annotations
+
+import os
+import re
+
+from .conftest import ROOT
+
+
+def test_readme_python_snippets_run(capsys):
+    text = (ROOT / "README.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    assert blocks
+    cwd = os.getcwd()
+    os.chdir(ROOT)
+    try:
+        for code in blocks:
+            exec(compile(code, "README.md", "exec"), {})
+    finally:
+        os.chdir(cwd)
+    out = capsys.readouterr().out
+    assert out.splitlines()[0] == "True"
+
+
+def test_readme_starts_with_the_two_commands():
+    text = (ROOT / "README.md").read_text()
+    first_block = re.search(r"```sh\n(.*?)```", text, flags=re.S).group(1)
+    assert first_block.splitlines()[0].startswith("make demo")
+    assert first_block.splitlines()[1].startswith("make test")
+    makefile = (ROOT / "Makefile").read_text()
+    assert re.search(r"^test:", makefile, flags=re.M) and re.search(r"^demo:", makefile, flags=re.M)
+    assert "make test" in (ROOT / ".ci" / "run").read_text()
+
+
+def test_dockerfile_copies_only_what_exists():
+    text = (ROOT / "docker" / "Dockerfile").read_text()
+    for src in re.findall(r"^COPY\s+(.+?)\s+\S+$", text, flags=re.M):
+        for part in src.split():
+            assert (ROOT / part).exists(), part
