@@ -102,11 +102,24 @@ class _Scene:
         self.version = snap.version
         bodies: list[_Body] = []
         for b in robot.bodies:
-            bodies.append(self._body(checker, b.link, b.link, robot.link_index(b.link), b.T_link_body,
-                                     b.shape, False, frozenset()))
+            bodies.append(
+                self._body(
+                    checker, b.link, b.link, robot.link_index(b.link), b.T_link_body, b.shape, False, frozenset()
+                )
+            )
         for a in snap.attachments.values():
-            bodies.append(self._body(checker, f"attached:{a.name}", a.link, robot.link_index(a.link),
-                                     a.T_link_object, a.shape, True, a.touch_links))
+            bodies.append(
+                self._body(
+                    checker,
+                    f"attached:{a.name}",
+                    a.link,
+                    robot.link_index(a.link),
+                    a.T_link_object,
+                    a.shape,
+                    True,
+                    a.touch_links,
+                )
+            )
         self.bodies = bodies
         B = len(bodies)
         slots, offsets = zip(*(robot.frame_offset(b.link) for b in bodies))
@@ -174,8 +187,21 @@ class _Scene:
         env, env_box = padded_geometry(shape, checker.padding)
         own, own_box = padded_geometry(shape, checker.robot.self_body_padding)
         raw, raw_box = padded_geometry(shape, 0.0)
-        return _Body(name, link, link_index, np.asarray(T_lb, dtype=float), shape, env, own, raw, env_box, own_box,
-                     raw_box, attached, touch)
+        return _Body(
+            name,
+            link,
+            link_index,
+            np.asarray(T_lb, dtype=float),
+            shape,
+            env,
+            own,
+            raw,
+            env_box,
+            own_box,
+            raw_box,
+            attached,
+            touch,
+        )
 
 
 class _ThreadObjects:
@@ -237,8 +263,13 @@ class CollisionChecker:
     @classmethod
     def from_config(cls, robot: RobotModel, world: World, cfg) -> CollisionChecker:
         """Build from a validated `collision` config section."""
-        return cls(robot, world, padding=cfg.padding, path_resolution=cfg.path_resolution,
-                   allowed_contacts=cfg.allowed_contacts)
+        return cls(
+            robot,
+            world,
+            padding=cfg.padding,
+            path_resolution=cfg.path_resolution,
+            allowed_contacts=cfg.allowed_contacts,
+        )
 
     # ------------------------------------------------------------------ caches
     def _current(self) -> tuple[WorldSnapshot, _Scene, _ThreadObjects, fcl.CollisionObject | None]:
@@ -271,7 +302,10 @@ class CollisionChecker:
 
     @staticmethod
     def _aabbs(T: np.ndarray, c: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World-aligned boxes (N, K, B, 3) of local boxes (K, B, 4, 1) centres, (K, B, 3, 1) halves at poses T (N, B, 4, 4)."""
+        """World-aligned boxes (N, K, B, 3) of local boxes at body poses T (N, B, 4, 4).
+
+        c: homogeneous local centres (K, B, 4, 1); h: local half extents (K, B, 3, 1).
+        """
         center = (T[:, None] @ c)[..., :3, 0]
         half = (np.abs(T[:, None, :, :3, :3]) @ h)[..., 0]
         return center - half, center + half
@@ -299,7 +333,9 @@ class CollisionChecker:
         if len(scene.box_cols):
             slo, shi = lo[:, 1], hi[:, 1]
             a, b = scene.box_a, scene.box_b
-            cand_self[:, scene.box_cols] = np.all(slo[:, a] <= shi[:, b], axis=-1) & np.all(shi[:, a] >= slo[:, b], axis=-1)
+            cand_self[:, scene.box_cols] = np.all(slo[:, a] <= shi[:, b], axis=-1) & np.all(
+                shi[:, a] >= slo[:, b], axis=-1
+            )
         return cand_oct, cand_obj, cand_self
 
     # ------------------------------------------------------------------ narrowphase
@@ -420,7 +456,9 @@ class CollisionChecker:
             if len(near):
                 # lower bound per body: nearest voxel centre to its bounding ball, minus ball and half voxel diagonal
                 centers = (T[near] @ scene.ball_c[near])[:, :3, 0]
-                gap, _ = occ.kdtree.query(centers, distance_upper_bound=best[0] + scene.ball_r[near].max() + occ.resolution)
+                gap, _ = occ.kdtree.query(
+                    centers, distance_upper_bound=best[0] + scene.ball_r[near].max() + occ.resolution
+                )
                 bound = gap - scene.ball_r[near] - occ.resolution * np.sqrt(3) / 2
                 for k in np.argsort(bound):
                     if bound[k] >= best[0]:
@@ -461,13 +499,3 @@ class CollisionChecker:
                 seg = min(int(pos[i]), len(waypoints) - 2) if len(Q) > 1 else 0
                 return PathCheck(False, i + 1, seg, float(pos[i] - seg), Q[i].copy(), contacts[int(bad[0])])
         return PathCheck(True, len(Q))
-
-    def allowed_contact_names(self) -> list[str]:
-        return [f"{a}/{b}" for a, b in sorted(self._allowed_contacts)]
-
-    def set_padding(self, padding: float) -> None:
-        """Change the world padding [m]; geometry is rebuilt on the next check."""
-        if not (0.0 <= padding < 1.0):
-            raise InvalidInputError(f"padding must be in [0, 1) m, got {padding}")
-        self.padding = float(padding)
-        self._scene = None

@@ -173,7 +173,9 @@ def load_config(path: str | os.PathLike) -> ReplannerConfig:
     """Read and validate a YAML config file; errors name the file, the field and what is allowed."""
     p = Path(path)
     if not p.is_file():
-        raise ConfigError(f"config file not found: {p} (pass an existing YAML file, e.g. configs/panda.yaml)", source=str(p))
+        raise ConfigError(
+            f"config file not found: {p} (pass an existing YAML file, e.g. configs/panda.yaml)", source=str(p)
+        )
     try:
         data = yaml.safe_load(p.read_text())
     except yaml.YAMLError as err:

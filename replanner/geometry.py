@@ -50,7 +50,7 @@ class Mesh:
     vertices: np.ndarray
     faces: np.ndarray
     convex: bool = False  # True: check its convex hull (faster, conservative)
-    _hash: int = field(default=0, repr=False)
+    _hash: int = field(default=0, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         v = np.asarray(self.vertices, dtype=np.float64)

@@ -7,7 +7,6 @@ A snapshot is never modified after construction, so readers can use it while a n
 from __future__ import annotations
 
 import time
-
 from functools import cached_property
 
 import fcl
@@ -52,7 +51,9 @@ class OccupancyMap:
         stamp: time [s] the map describes (e.g. the newest cloud's timestamp).
     """
 
-    def __init__(self, keys: np.ndarray, resolution: float, *, broadphase_cell: float = 0.04, stamp: float | None = None):
+    def __init__(
+        self, keys: np.ndarray, resolution: float, *, broadphase_cell: float = 0.04, stamp: float | None = None
+    ):
         if not (resolution > 0 and np.isfinite(resolution)):
             raise InvalidInputError(f"resolution must be > 0 [m], got {resolution}")
         k = np.asarray(keys)
@@ -117,7 +118,10 @@ class OccupancyMap:
         self._inv_cell = 1.0 / cell
 
     def any_in_boxes(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """For axis-aligned boxes [lo, hi] (..., 3) [m]: True where an occupied voxel may overlap (never a false False)."""
+        """For axis-aligned boxes [lo, hi] (..., 3) [m]: True where an occupied voxel may overlap.
+
+        Never a false False; a True may be a voxel nearby in the same coarse cell.
+        """
         if not len(self.keys):
             return np.zeros(np.shape(lo)[:-1], dtype=bool)
         # cells [a, b] overlap the box; in table coordinates that is the half-open range [a, b + 1)

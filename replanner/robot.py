@@ -19,7 +19,7 @@ import yourdfpy
 
 from .config import RobotConfig
 from .errors import InvalidInputError, RobotModelError, UnknownNameError
-from .geometry import Box, ConvexHull, Cylinder, Mesh, Shape, Sphere, bounding_radius
+from .geometry import Box, ConvexHull, Cylinder, Mesh, Shape, Sphere
 from .selfcollision import SelfClearanceTables, default_cache_dir
 
 log = logging.getLogger(__name__)
@@ -175,7 +175,7 @@ class RobotModel:
         if tip_link not in self.link_names:
             raise UnknownNameError("link", tip_link, self.link_names)
         self.tip_link = tip_link
-        joint_by_name = {j.name: j for j, in ((v,) for _, v in order if v is not None)}
+        joint_by_name = {j.name: j for _, j in order if j is not None}
         movable = [n for n, j in joint_by_name.items() if j.type != "fixed"]
         for j in joint_by_name.values():
             if j.type in ("floating", "planar"):
@@ -513,14 +513,6 @@ class RobotModel:
             if self._frame_anc[k, j]:
                 out[j] = self._chain_len[j, k] + r_in_frame if not self._prismatic[j] else 1.0
         return out
-
-    def body_reach(self) -> np.ndarray:
-        """(dof,) max over the robot's own bodies of `reach`."""
-        r = np.zeros(self.dof)
-        for b in self.bodies:
-            radius = bounding_radius(b.shape) + float(np.linalg.norm(b.T_link_body[:3, 3]))
-            r = np.maximum(r, self.reach(b.link, radius))
-        return r
 
     def random_q(self, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
         """Uniform random configurations within the position limits, (n, dof) or (dof,)."""

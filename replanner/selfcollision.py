@@ -86,8 +86,26 @@ class SelfClearanceTables:
         eye = np.eye(P)
         self._W = np.vstack([eye * n1, eye]).astype(np.int64)  # flat index = i0 * n1 + i1
         self._R = np.vstack([eye * (r0 * self.step0), eye * (r1 * self.step1)])  # slack per grid unit
-        for arr in (self._J, self._LO, self._STEP, self._NMAX, self._W, self._R, self.j0, self.j1, self.lo0, self.lo1, self.step0, self.step1, self.n0, self.n1, self.offset,
-                    self.r0, self.r1, self.table):
+        for arr in (
+            self._J,
+            self._LO,
+            self._STEP,
+            self._NMAX,
+            self._W,
+            self._R,
+            self.j0,
+            self.j1,
+            self.lo0,
+            self.lo1,
+            self.step0,
+            self.step1,
+            self.n0,
+            self.n1,
+            self.offset,
+            self.r0,
+            self.r1,
+            self.table,
+        ):
             arr.setflags(write=False)
 
     @staticmethod
@@ -116,7 +134,9 @@ class SelfClearanceTables:
                 body = r.bodies[bi]
                 h.update(body.link.encode())
                 h.update(np.ascontiguousarray(body.T_link_body).tobytes())
-                h.update(repr(body.shape if not hasattr(body.shape, "vertices") else body.shape.vertices.tobytes()).encode())
+                h.update(
+                    repr(body.shape if not hasattr(body.shape, "vertices") else body.shape.vertices.tobytes()).encode()
+                )
             h.update(np.asarray(joints).tobytes())
         return h.hexdigest()[:24]
 

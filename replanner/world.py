@@ -193,11 +193,10 @@ class World:
     # ------------------------------------------------------------------ helpers
     def _get_static(self, name: str) -> WorldObject:
         s = self._snap
+        if name in s.attachments:
+            raise WorldError(f"{name!r} is attached to {s.attachments[name].link}; detach it first")
         if name not in s.objects:
-            hint = " (it is attached; detach it first)" if name in s.attachments else ""
-            raise UnknownNameError("static object", name, sorted(s.objects)) if not hint else WorldError(
-                f"{name!r} is attached to {s.attachments[name].link}{hint}"
-            )
+            raise UnknownNameError("static object", name, sorted(s.objects))
         return s.objects[name]
 
     def _touch_links(self, link: str, touch_links: Iterable[str] | None) -> frozenset[str]:

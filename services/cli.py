@@ -15,9 +15,12 @@ from rich.table import Table
 from replanner.config import ReplannerConfig, load_config
 from replanner.errors import ReplannerError
 
-app = typer.Typer(help="replanner: reactive replanning for robot arms next to people.", no_args_is_help=True,
-                  pretty_exceptions_enable=False,
-                  add_completion=False)
+app = typer.Typer(
+    help="replanner: reactive replanning for robot arms next to people.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
 bench_app = typer.Typer(help="Benchmarks: fixed seeds, printed figures (median, p95, n).", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
 
@@ -27,8 +30,9 @@ CONFIG_HELP = "Robot config: a YAML file, or the name of a shipped profile (pand
 
 
 def shipped_profiles() -> list[str]:
-    return sorted(p.name.removesuffix(".yaml") for p in resources.files("replanner_configs").iterdir()
-                  if p.name.endswith(".yaml"))
+    return sorted(
+        p.name.removesuffix(".yaml") for p in resources.files("replanner_configs").iterdir() if p.name.endswith(".yaml")
+    )
 
 
 def resolve_config(config: str) -> ReplannerConfig:
@@ -46,17 +50,34 @@ def _fail(err: Exception) -> None:
 
 
 def _print_collision(result: dict) -> None:
-    t = Table(title=f"collision checks: {result['robot']}, table + {result['scene']['octree_voxels']} voxels "
-                    f"({result['valid_fraction']:.0%} of configurations valid)")
+    t = Table(
+        title=f"collision checks: {result['robot']}, table + {result['scene']['octree_voxels']} voxels "
+        f"({result['valid_fraction']:.0%} of configurations valid)"
+    )
     for col in ("query", "rate (median)", "latency median", "latency p95", "n"):
         t.add_column(col)
     s, b, d = result["boolean_single"], result["boolean_batched"], result["distance"]
-    t.add_row("is_valid, 1 per call", f"{s['checks_per_s_median']:,.0f} /s", f"{s['latency_us']['median']:.1f} µs",
-              f"{s['latency_us']['p95']:.1f} µs", f"{s['runs']} × {s['n_per_run']}")
-    t.add_row(f"is_valid_batch, {b['chunk']} per call", f"{b['checks_per_s_median']:,.0f} /s", "-", "-",
-              f"{b['runs']} × {b['n_per_run']}")
-    t.add_row("clearance (distance)", f"{d['queries_per_s_median']:,.0f} /s", f"{d['latency_us']['median']:.0f} µs",
-              f"{d['latency_us']['p95']:.0f} µs", str(d["latency_us"]["n"]))
+    t.add_row(
+        "is_valid, 1 per call",
+        f"{s['checks_per_s_median']:,.0f} /s",
+        f"{s['latency_us']['median']:.1f} µs",
+        f"{s['latency_us']['p95']:.1f} µs",
+        f"{s['runs']} × {s['n_per_run']}",
+    )
+    t.add_row(
+        f"is_valid_batch, {b['chunk']} per call",
+        f"{b['checks_per_s_median']:,.0f} /s",
+        "-",
+        "-",
+        f"{b['runs']} × {b['n_per_run']}",
+    )
+    t.add_row(
+        "clearance (distance)",
+        f"{d['queries_per_s_median']:,.0f} /s",
+        f"{d['latency_us']['median']:.0f} µs",
+        f"{d['latency_us']['p95']:.0f} µs",
+        str(d["latency_us"]["n"]),
+    )
     Console().print(t)
 
 

@@ -9,7 +9,6 @@ from replanner.geometry import Box, Cylinder, Sphere
 from replanner.robot import RobotModel
 from replanner.transforms import matrix_to_quat
 
-
 # pybullet inflates every convex hull it builds from a URDF mesh by a 1 mm collision margin, so its distances
 # are ~1 mm per hull smaller than the hulls' true distance (test_oracle_margin measures it).
 HULL_MARGIN = 0.001
@@ -59,22 +58,31 @@ class PyBulletOracle:
 
     def add(self, name: str, shape, pose: np.ndarray) -> int:
         if isinstance(shape, Box):
-            col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[s / 2 for s in shape.size], physicsClientId=self.cid)
+            col = pb.createCollisionShape(
+                pb.GEOM_BOX, halfExtents=[s / 2 for s in shape.size], physicsClientId=self.cid
+            )
         elif isinstance(shape, Sphere):
             col = pb.createCollisionShape(pb.GEOM_SPHERE, radius=shape.radius, physicsClientId=self.cid)
         elif isinstance(shape, Cylinder):
-            col = pb.createCollisionShape(pb.GEOM_CYLINDER, radius=shape.radius, height=shape.length,
-                                          physicsClientId=self.cid)
+            col = pb.createCollisionShape(
+                pb.GEOM_CYLINDER, radius=shape.radius, height=shape.length, physicsClientId=self.cid
+            )
         else:
             raise TypeError(type(shape))
-        body = pb.createMultiBody(0, col, basePosition=pose[:3, 3].tolist(),
-                                  baseOrientation=matrix_to_quat(pose[:3, :3]).tolist(), physicsClientId=self.cid)
+        body = pb.createMultiBody(
+            0,
+            col,
+            basePosition=pose[:3, 3].tolist(),
+            baseOrientation=matrix_to_quat(pose[:3, :3]).tolist(),
+            physicsClientId=self.cid,
+        )
         self.obstacles[name] = body
         return body
 
     def move(self, name: str, pose: np.ndarray) -> None:
-        pb.resetBasePositionAndOrientation(self.obstacles[name], pose[:3, 3].tolist(),
-                                           matrix_to_quat(pose[:3, :3]).tolist(), physicsClientId=self.cid)
+        pb.resetBasePositionAndOrientation(
+            self.obstacles[name], pose[:3, 3].tolist(), matrix_to_quat(pose[:3, :3]).tolist(), physicsClientId=self.cid
+        )
 
     def remove_all(self) -> None:
         for body in self.obstacles.values():
@@ -92,11 +100,14 @@ class PyBulletOracle:
                 best = min(best, c[8])
         return best
 
-    def min_self_distance(self, link_pairs: list[tuple[str, str]], cutoff: float) -> tuple[float, tuple[str, str] | None]:
+    def min_self_distance(
+        self, link_pairs: list[tuple[str, str]], cutoff: float
+    ) -> tuple[float, tuple[str, str] | None]:
         best, who = cutoff, None
         for a, b in link_pairs:
-            for c in pb.getClosestPoints(self.body, self.body, cutoff, self.link_id[a], self.link_id[b],
-                                         physicsClientId=self.cid):
+            for c in pb.getClosestPoints(
+                self.body, self.body, cutoff, self.link_id[a], self.link_id[b], physicsClientId=self.cid
+            ):
                 if c[8] < best:
                     best, who = c[8], (a, b)
         return best, who

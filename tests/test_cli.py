@@ -14,8 +14,13 @@ from .conftest import CONFIGS
 
 def replanner(*args, timeout=300):
     env = {**os.environ, "COLUMNS": "200"}  # no line wrapping inside messages
-    return subprocess.run([sys.executable, "-m", "replanner_services.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, env=env)
+    return subprocess.run(
+        [sys.executable, "-m", "replanner_services.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=env,
+    )
 
 
 def test_bench_collision_json():

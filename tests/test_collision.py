@@ -40,8 +40,9 @@ def test_pybullet_hull_margin_is_what_the_oracle_assumes(panda):
             Tb = T[panda.link_index(b.link)] @ b.T_link_body
             obj = fcl.CollisionObject(to_fcl(b.shape), fcl.Transform(Tb[:3, :3], Tb[:3, 3]))
             d = fcl.distance(obj, ref, fcl.DistanceRequest())
-            pts = pb.getClosestPoints(oracle.body, body, 0.3, linkIndexA=oracle.link_id[b.link],
-                                      physicsClientId=oracle.cid)
+            pts = pb.getClosestPoints(
+                oracle.body, body, 0.3, linkIndexA=oracle.link_id[b.link], physicsClientId=oracle.cid
+            )
             if pts and d > 0.002:
                 diffs.append(d - min(c[8] for c in pts))
     oracle.close()
@@ -84,8 +85,10 @@ def test_verdicts_agree_with_pybullet_over_2000_configurations(profile):
             invalid += ours_invalid
             n += 1
     oracle.close()
-    print(f"{robot.name}: {n} configurations, {invalid} invalid, {mismatch} disagreements "
-          f"({100 * mismatch / n:.2f} %), {unsafe} free-where-pybullet-penetrates")
+    print(
+        f"{robot.name}: {n} configurations, {invalid} invalid, {mismatch} disagreements "
+        f"({100 * mismatch / n:.2f} %), {unsafe} free-where-pybullet-penetrates"
+    )
     assert n >= 2000
     assert 0.1 * n < invalid < 0.9 * n  # the scenes really test both outcomes
     assert unsafe == 0
@@ -127,8 +130,9 @@ def test_broadphase_and_tables_never_change_a_verdict(panda, panda_cfg):
     checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
     Q = panda.random_q(rng, 1500)
     # half of them near the folded pose, where self pairs are close
-    Q[::2] = np.clip(np.array(PANDA_FOLDED) + rng.normal(0, 0.25, (len(Q[::2]), 7)), panda.limits.lower,
-                     panda.limits.upper)
+    Q[::2] = np.clip(
+        np.array(PANDA_FOLDED) + rng.normal(0, 0.25, (len(Q[::2]), 7)), panda.limits.lower, panda.limits.upper
+    )
     batch = checker.is_valid_batch(Q)
     ref = np.array([not _brute_force_invalid(checker, q) for q in Q])
     single = np.array([checker.is_valid(q) for q in Q])

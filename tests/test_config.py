@@ -147,6 +147,8 @@ def test_broken_urdf_is_a_robot_model_error(tmp_path, panda_dict):
 
 
 def test_config_models_are_frozen(panda_cfg):
-    with pytest.raises(Exception):
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match="frozen"):
         panda_cfg.collision.padding = 0.5
     assert np.isclose(panda_cfg.collision.padding, 0.01)

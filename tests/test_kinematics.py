@@ -59,8 +59,11 @@ def test_jacobian_matches_finite_differences(profile):
 
 def test_jacobian_matches_pybullet(panda):
     oracle = PyBulletOracle(panda)
-    movable = [j for j in range(pb.getNumJoints(oracle.body, physicsClientId=oracle.cid))
-               if pb.getJointInfo(oracle.body, j, physicsClientId=oracle.cid)[2] != pb.JOINT_FIXED]
+    movable = [
+        j
+        for j in range(pb.getNumJoints(oracle.body, physicsClientId=oracle.cid))
+        if pb.getJointInfo(oracle.body, j, physicsClientId=oracle.cid)[2] != pb.JOINT_FIXED
+    ]
     names = [pb.getJointInfo(oracle.body, j, physicsClientId=oracle.cid)[1].decode() for j in movable]
     cols = [names.index(n) for n in panda.joint_names]
     rng = np.random.default_rng(4)
@@ -71,8 +74,15 @@ def test_jacobian_matches_pybullet(panda):
             full[names.index(n)] = float(v)
         # pybullet 3.2.7 takes the point in the URDF link frame (measured; its docs say centre of mass)
         point = [0.02, -0.01, 0.1]
-        lin, ang = pb.calculateJacobian(oracle.body, oracle.link_id["panda_hand"], point, full,
-                                        [0.0] * len(full), [0.0] * len(full), physicsClientId=oracle.cid)
+        lin, ang = pb.calculateJacobian(
+            oracle.body,
+            oracle.link_id["panda_hand"],
+            point,
+            full,
+            [0.0] * len(full),
+            [0.0] * len(full),
+            physicsClientId=oracle.cid,
+        )
         J = panda.jacobian(q, "panda_hand", point)
         np.testing.assert_allclose(J[:3], np.array(lin)[:, cols], atol=1e-6)
         np.testing.assert_allclose(J[3:], np.array(ang)[:, cols], atol=1e-6)

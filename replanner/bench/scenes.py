@@ -33,7 +33,9 @@ def clutter_voxels(rng: np.random.Generator, target: int, resolution: float = 0.
     ]
     keys = np.zeros((0, 3), np.int64)
     while True:
-        pts = np.concatenate([trimesh.sample.sample_surface_even(m, 40000, seed=int(rng.integers(2**31)))[0] for m in meshes])
+        pts = np.concatenate(
+            [trimesh.sample.sample_surface_even(m, 40000, seed=int(rng.integers(2**31)))[0] for m in meshes]
+        )
         keys = np.unique(np.concatenate([keys, voxel_keys(pts, resolution)]), axis=0)
         if len(keys) >= target:
             break
