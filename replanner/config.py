@@ -112,9 +112,131 @@ class CollisionConfig(_Section):
     )
 
 
+Vec3 = tuple[float, float, float]
+
+
+class PoseConfig(_Section):
+    """A pose in the robot base frame: position [m] and quaternion (x, y, z, w), or eye/target to look at."""
+
+    position: Vec3 | None = None
+    quat_xyzw: tuple[float, float, float, float] | None = None
+    look_at: Vec3 | None = Field(None, description="Point the camera's optical axis (z) goes through [m].")
+
+    @model_validator(mode="after")
+    def _complete(self) -> PoseConfig:
+        if self.position is None:
+            raise ValueError("position is required")
+        if (self.quat_xyzw is None) == (self.look_at is None):
+            raise ValueError("give exactly one of quat_xyzw (orientation) or look_at (a point to look at)")
+        if self.quat_xyzw is not None and sum(q * q for q in self.quat_xyzw) < 1e-12:
+            raise ValueError("quat_xyzw must not be zero")
+        if self.look_at is not None and sum((a - b) ** 2 for a, b in zip(self.look_at, self.position)) < 1e-12:
+            raise ValueError("look_at must differ from position")
+        return self
+
+
+class SensorConfig(_Section):
+    """A depth camera: pinhole intrinsics (optical frame: x right, y down, z forward), pose, rate."""
+
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")
+    pose: PoseConfig
+    width: int = Field(gt=0, le=4096)
+    height: int = Field(gt=0, le=4096)
+    fov_y_deg: float | None = Field(None, gt=1.0, lt=179.0, description="Vertical field of view; or fx, fy.")
+    fx: float | None = Field(None, gt=0.0)
+    fy: float | None = Field(None, gt=0.0)
+    cx: float | None = None
+    cy: float | None = None
+    rate_hz: float = Field(30.0, gt=0.0, le=1000.0)
+    min_range: float = Field(0.1, ge=0.0, description="Closer returns are dropped [m].")
+    max_range: float = Field(4.0, gt=0.0, description="Farther returns are dropped [m].")
+    max_points: int | None = Field(None, gt=0, description="Larger clouds are rejected; default width * height.")
+
+    @model_validator(mode="after")
+    def _intrinsics(self) -> SensorConfig:
+        if (self.fov_y_deg is None) == (self.fx is None and self.fy is None):
+            raise ValueError("give either fov_y_deg or fx and fy")
+        if self.max_range <= self.min_range:
+            raise ValueError(f"max_range ({self.max_range}) must exceed min_range ({self.min_range})")
+        return self
+
+
+class WorkspaceConfig(_Section):
+    min: Vec3 = (-0.8, -1.0, -0.05)
+    max: Vec3 = (1.2, 1.0, 1.5)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> WorkspaceConfig:
+        if any(a >= b for a, b in zip(self.min, self.max)):
+            raise ValueError(f"workspace min {list(self.min)} must be below max {list(self.max)} on every axis")
+        return self
+
+
+class SelfFilterConfig(_Section):
+    enabled: bool = True
+    padding: float = Field(0.03, ge=0.0, le=0.3, description="Points this close to the robot are its own [m].")
+    static_objects_padding: float | None = Field(
+        0.01, ge=0.0, le=0.3, description="Points this close to a known static object are dropped [m]; null keeps them."
+    )
+    max_joint_state_age: float = Field(
+        0.2, gt=0.0, description="Joint state used must be within this time of the cloud's stamp [s]."
+    )
+
+
+class OutlierConfig(_Section):
+    method: Literal["neighbours", "statistical", "both", "none"] = "neighbours"
+    min_neighbours: int = Field(2, ge=1, le=26, description="Occupied voxels among the 26 around a kept voxel.")
+    k: int = Field(8, ge=1, le=64, description="Statistical: neighbours per point.")
+    std_ratio: float = Field(1.0, gt=0.0, description="Statistical: keep mean distance <= mean + ratio * std.")
+
+
+class OccupancyUpdateConfig(_Section):
+    hit: float = Field(0.85, gt=0.0, description="Log-odds added per frame a voxel is hit.")
+    miss: float = Field(-0.85, lt=0.0, description="Log-odds added per frame a camera sees through the voxel.")
+    clamp_max: float = Field(2.2, gt=0.0, description="Upper clamp; bounds how long clearing takes.")
+    clearing: Literal["projection", "none"] = "projection"
+    clearing_margin: float = Field(
+        0.005,
+        ge=0.0,
+        description="Depth noise allowance [m]: a voxel is seen through when the measured depth is "
+        "beyond its centre by this plus half a voxel.",
+    )
+    decay_after: float | None = Field(10.0, gt=0.0, description="Voxels not hit for this long are dropped [s].")
+
+
+class PerceptionConfig(_Section):
+    """The workspace box is also the crop: the map covers exactly it."""
+
+    resolution: float = Field(0.01, ge=0.002, le=0.2, description="Voxel edge [m].")
+    workspace: WorkspaceConfig = Field(default_factory=WorkspaceConfig)
+    sensors: list[SensorConfig] = Field(default_factory=list)
+    range_filter: bool = True
+    downsample: bool = Field(True, description="Filter voxels instead of points (much faster).")
+    self_filter: SelfFilterConfig = Field(default_factory=SelfFilterConfig)
+    outliers: OutlierConfig = Field(default_factory=OutlierConfig)
+    occupancy: OccupancyUpdateConfig = Field(default_factory=OccupancyUpdateConfig)
+    max_cells: int = Field(60_000_000, gt=0, description="Cap on workspace cells (memory: 8 bytes per cell).")
+
+    @model_validator(mode="after")
+    def _size(self) -> PerceptionConfig:
+        cells = 1
+        for a, b in zip(self.workspace.min, self.workspace.max):
+            cells *= int(round((b - a) / self.resolution)) + 2
+        if cells > self.max_cells:
+            raise ValueError(
+                f"the workspace has {cells:,} cells at {self.resolution} m, more than max_cells={self.max_cells:,}; "
+                "shrink the workspace or coarsen the resolution"
+            )
+        names = [s.name for s in self.sensors]
+        if len(set(names)) != len(names):
+            raise ValueError(f"sensor names must be unique, got {names}")
+        return self
+
+
 class ReplannerConfig(_Section):
     robot: RobotConfig
     collision: CollisionConfig = Field(default_factory=CollisionConfig)
+    perception: PerceptionConfig | None = None
 
 
 def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:

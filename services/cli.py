@@ -104,6 +104,54 @@ def bench_collision(
         _print_collision(result)
 
 
+def _print_perception(r: dict) -> None:
+    t = Table(
+        title=f"perception: {r['sensor']['width']}x{r['sensor']['height']} organised cloud at "
+        f"{r['resolution_m']} m, {r['frames']} frames (+{r['warmup_frames']} warm-up)"
+    )
+    for col in ("stage", "points/voxels out (median)", "ms median", "ms p95"):
+        t.add_column(col)
+    counts = r["count_out_per_stage_median"]
+    t.add_row("input", str(counts.get("input", "")), "", "")
+    for stage, s in r["ms_per_stage"].items():
+        key = {"transform_crop": "crop", "voxel_grid": "voxels", "range": "range"}.get(stage, stage)
+        t.add_row(stage, str(counts.get(key, "")), f"{s['median']:.2f}", f"{s['p95']:.2f}")
+    f = r["ms_per_frame"]
+    t.add_row(
+        "[bold]whole frame", f"{r['occupied_voxels_median']} occupied", f"[bold]{f['median']:.1f}", f"{f['p95']:.1f}"
+    )
+    Console().print(t)
+    ref, c = r["reference_octomap_insert_ms"], r["clearing"]
+    Console().print(
+        f"octomap-python ray-cast insertion of the same cloud: {ref['median']:.0f} ms median (n={ref['n']})"
+    )
+    Console().print(
+        f"clearing: a removed box ({c['box_voxels_mapped']} voxels) was gone after "
+        f"{c['frames_to_clear_measured']} frames (bound {c['frames_to_clear_bound']})"
+    )
+
+
+@bench_app.command("perception")
+def bench_perception(
+    config: str = typer.Option("panda", "--config", "-c", help=CONFIG_HELP),
+    seed: int = typer.Option(0, min=0, help="Seed of the scene."),
+    frames: int = typer.Option(40, min=30, help="Timed frames (at least 30)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
+) -> None:
+    """Whole perception pipeline on 640x480 clouds rendered by pybullet; octomap-python as the reference."""
+    from replanner.bench import perception
+
+    try:
+        cfg = resolve_config(config)
+        result = perception.run(cfg, seed=seed, frames=frames)
+    except (ReplannerError, ValueError) as err:
+        _fail(err)
+    if as_json:
+        print(json.dumps(result, indent=2))
+    else:
+        _print_perception(result)
+
+
 @app.command("demo")
 def demo() -> None:
     """Simulated pick-and-place with an intruding operator (not built yet)."""

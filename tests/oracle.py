@@ -5,40 +5,23 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
-from replanner.geometry import Box, Cylinder, Sphere
 from replanner.robot import RobotModel
-from replanner.transforms import matrix_to_quat
+from replanner.sim.scene import PyBulletScene
 
 # pybullet inflates every convex hull it builds from a URDF mesh by a 1 mm collision margin, so its distances
 # are ~1 mm per hull smaller than the hulls' true distance (test_oracle_margin measures it).
 HULL_MARGIN = 0.001
 
 
-class PyBulletOracle:
-    """A DIRECT pybullet client with the robot loaded at the origin, its passive joints set like the model's."""
+class PyBulletOracle(PyBulletScene):
+    """The robot loaded by pybullet from the same URDF (no floor or walls), with pybullet's own FK and distances."""
 
     def __init__(self, robot: RobotModel):
-        self.robot = robot
-        self.cid = pb.connect(pb.DIRECT)
-        self.body = pb.loadURDF(str(robot.urdf_path), useFixedBase=True, physicsClientId=self.cid)
-        self.link_id: dict[str, int] = {}
-        self.joint_id: dict[str, int] = {}
-        root = pb.getBodyInfo(self.body, physicsClientId=self.cid)[0].decode()
-        self.link_id[root] = -1
-        for j in range(pb.getNumJoints(self.body, physicsClientId=self.cid)):
-            info = pb.getJointInfo(self.body, j, physicsClientId=self.cid)
-            self.joint_id[info[1].decode()] = j
-            self.link_id[info[12].decode()] = j
-        for name, value in robot.passive_joint_positions.items():
-            pb.resetJointState(self.body, self.joint_id[name], value, physicsClientId=self.cid)
-        self.obstacles: dict[str, int] = {}
-
-    def close(self) -> None:
-        pb.disconnect(self.cid)
-
-    def set_q(self, q) -> None:
-        for name, value in zip(self.robot.joint_names, q):
-            pb.resetJointState(self.body, self.joint_id[name], float(value), physicsClientId=self.cid)
+        super().__init__(robot, room=False)
+        self.cid = self.client
+        self.link_id = dict(self.link_index)
+        self.link_id[pb.getBodyInfo(self.body, physicsClientId=self.cid)[0].decode()] = -1
+        self.obstacles = self.objects
 
     def link_pose(self, link: str) -> np.ndarray:
         """URDF link frame in the world (pybullet's worldLinkFrame, not the inertial frame)."""
@@ -55,39 +38,6 @@ class PyBulletOracle:
         T[:3, :3] = np.array(pb.getMatrixFromQuaternion(quat)).reshape(3, 3)
         T[:3, 3] = pos
         return T
-
-    def add(self, name: str, shape, pose: np.ndarray) -> int:
-        if isinstance(shape, Box):
-            col = pb.createCollisionShape(
-                pb.GEOM_BOX, halfExtents=[s / 2 for s in shape.size], physicsClientId=self.cid
-            )
-        elif isinstance(shape, Sphere):
-            col = pb.createCollisionShape(pb.GEOM_SPHERE, radius=shape.radius, physicsClientId=self.cid)
-        elif isinstance(shape, Cylinder):
-            col = pb.createCollisionShape(
-                pb.GEOM_CYLINDER, radius=shape.radius, height=shape.length, physicsClientId=self.cid
-            )
-        else:
-            raise TypeError(type(shape))
-        body = pb.createMultiBody(
-            0,
-            col,
-            basePosition=pose[:3, 3].tolist(),
-            baseOrientation=matrix_to_quat(pose[:3, :3]).tolist(),
-            physicsClientId=self.cid,
-        )
-        self.obstacles[name] = body
-        return body
-
-    def move(self, name: str, pose: np.ndarray) -> None:
-        pb.resetBasePositionAndOrientation(
-            self.obstacles[name], pose[:3, 3].tolist(), matrix_to_quat(pose[:3, :3]).tolist(), physicsClientId=self.cid
-        )
-
-    def remove_all(self) -> None:
-        for body in self.obstacles.values():
-            pb.removeBody(body, physicsClientId=self.cid)
-        self.obstacles.clear()
 
     def min_world_distance(self, cutoff: float, allowed: set[tuple[str, str]] = frozenset()) -> float:
         """Smallest signed distance [m] between robot links and obstacles (cutoff if none is closer)."""

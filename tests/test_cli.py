@@ -62,3 +62,17 @@ def test_bad_config_names_file_and_field(tmp_path):
 def test_demo_says_it_is_not_built_yet():
     out = replanner("demo")
     assert out.returncode == 2 and "not built yet" in out.stderr
+
+
+def test_bench_perception_json():
+    out = replanner("bench", "perception", "--json", "--frames", "30")
+    assert out.returncode == 0, out.stderr
+    r = json.loads(out.stdout)
+    assert r["bench"] == "perception" and r["frames"] == 30
+    assert r["sensor"]["width"] == 640 and r["sensor"]["height"] == 480
+    assert r["ms_per_frame"]["n"] == 30 and r["ms_per_frame"]["median"] > 0
+    counts = r["count_out_per_stage_median"]
+    assert counts["input"] == 640 * 480 and counts["input"] >= counts["range"] >= counts["crop"] >= counts["voxels"]
+    assert r["reference_octomap_insert_ms"]["n"] >= 1
+    c = r["clearing"]
+    assert c["box_voxels_mapped"] > 0 and c["frames_to_clear_measured"] <= c["frames_to_clear_bound"] <= 5

@@ -152,3 +152,30 @@ def test_config_models_are_frozen(panda_cfg):
     with pytest.raises(ValidationError, match="frozen"):
         panda_cfg.collision.padding = 0.5
     assert np.isclose(panda_cfg.collision.padding, 0.01)
+
+
+def test_perception_section_loads_with_two_sensors(panda_cfg):
+    p = panda_cfg.perception
+    assert [s.name for s in p.sensors] == ["front", "side"] and p.resolution == 0.01
+
+
+@pytest.mark.parametrize(
+    "edit,expect",
+    [
+        (lambda p: p["sensors"][0].pop("fov_y_deg"), "either fov_y_deg or fx and fy"),
+        (lambda p: p["sensors"][0]["pose"].pop("look_at"), "exactly one of quat_xyzw"),
+        (lambda p: p["sensors"][0].update(width=-640), "perception.sensors[0].width"),
+        (lambda p: p["sensors"][1].update(name="front"), "sensor names must be unique"),
+        (lambda p: p["workspace"].update(min=[2.0, -1.0, 0.0]), "must be below max"),
+        (lambda p: p.update(resolution=0.002), "max_cells"),
+        (lambda p: p["outliers"].update(method="median"), "perception.outliers.method"),
+        (lambda p: p["occupancy"].update(miss=0.4), "perception.occupancy.miss"),
+        (lambda p: p["sensors"][0].update(min_range=5.0), "must exceed min_range"),
+    ],
+)
+def test_bad_perception_configs(tmp_path, panda_dict, edit, expect):
+    edit(panda_dict["perception"])
+    path = _write(tmp_path, panda_dict)
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert expect in str(err.value) and path in str(err.value), str(err.value)

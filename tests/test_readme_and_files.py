@@ -14,9 +14,10 @@ def test_readme_python_snippets_run(capsys):
     assert blocks
     cwd = os.getcwd()
     os.chdir(ROOT)
+    namespace: dict = {}  # the snippets continue from each other, as a reader would type them
     try:
         for code in blocks:
-            exec(compile(code, "README.md", "exec"), {})
+            exec(compile(code, "README.md", "exec"), namespace)
     finally:
         os.chdir(cwd)
     out = capsys.readouterr().out

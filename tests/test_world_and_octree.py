@@ -176,3 +176,25 @@ def test_occupancy_swaps_while_another_thread_checks(panda):
         t.join()
     kinds = {None if c is None else c.kind for c in verdicts}
     assert kinds <= {None, "octree"}
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_octomap_writer_is_byte_identical_to_octomap(seed):
+    """Our numpy writer of OctoMap's binary stream against OctoMap itself (octomap-python)."""
+    import octomap
+
+    from replanner.occupancy import octomap_binary, octomap_payload
+
+    rng = np.random.default_rng(seed)
+    keys = np.unique(np.vstack([rng.integers(-300, 300, (2000, 3)), rng.integers(-5, 5, (500, 3))]), axis=0)
+    tree = octomap.OcTree(0.01)
+    tree.updateNodes(voxel_centers(keys, 0.01), True)
+    assert octomap_binary(keys) == octomap_payload(tree.writeBinary()).tobytes()
+
+
+def test_empty_map_has_no_tree_and_collides_with_nothing(panda):
+    occ = OccupancyMap.empty()
+    assert occ.tree is None and len(occ) == 0
+    world = World(panda)
+    world.set_occupancy(occ)
+    assert CollisionChecker(panda, world).is_valid(panda.home)

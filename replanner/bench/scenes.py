@@ -51,3 +51,36 @@ def clutter_voxels(rng: np.random.Generator, target: int, resolution: float = 0.
 
 def clutter_map(rng: np.random.Generator, target: int = 50_000, resolution: float = 0.01, **kw) -> OccupancyMap:
     return OccupancyMap(clutter_voxels(rng, target, resolution), resolution, **kw)
+
+
+def operator_boxes(t: float, start=(1.0, -0.95), end=(-0.2, -0.95), reach: float = 0.35) -> dict:
+    """A person walking from `start` to `end` [m] (fraction t in [0, 1]) beside the table, reaching over it.
+
+    Returns {name: (Box, pose)}: a torso and a forearm pointing `reach` [m] towards the table's centre line.
+    """
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    p = start + (end - start) * t
+    d = (end - start) / max(np.linalg.norm(end - start), 1e-9)
+    n = np.array([-d[1], d[0]])
+    if n @ (np.array([0.3, 0.0]) - p) < 0:  # face the table
+        n = -n
+    yaw = np.arctan2(n[1], n[0])
+    q = (0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2))
+    arm = p + n * (0.15 + reach / 2)
+    return {
+        "operator_torso": (Box((0.3, 0.45, 0.8)), make_transform((p[0], p[1], 0.75), q)),
+        "operator_arm": (Box((reach, 0.08, 0.08)), make_transform((arm[0], arm[1], 0.35), q)),
+    }
+
+
+def tabletop_clutter(rng: np.random.Generator, n: int = 3) -> dict[str, tuple[Box, np.ndarray]]:
+    """Seeded boxes standing on the table, out of the robot's base area."""
+    out = {}
+    for i in range(n):
+        size = tuple(rng.uniform(0.06, 0.2, 3))
+        xy = (rng.uniform(0.35, 0.75), rng.uniform(-0.5, 0.5))
+        out[f"clutter{i}"] = (
+            Box(size),
+            make_transform((xy[0], xy[1], size[2] / 2), (0, 0, np.sin(rng.uniform(0, 1.5)), 1)),
+        )
+    return out

@@ -1,0 +1,91 @@
+"""A pybullet world mirroring a replanner robot and its static objects (the simulator's ground truth)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+
+from ..geometry import Box, Cylinder, Shape, Sphere
+from ..robot import RobotModel
+from ..transforms import make_transform, matrix_to_quat
+
+
+def room_geometry() -> list[tuple[str, Shape, np.ndarray]]:
+    """Floor 0.75 m below the table top and walls 3 m away: what the cameras see behind everything."""
+    return [
+        ("floor", Box((10.0, 10.0, 0.1)), make_transform((0.0, 0.0, FLOOR_Z - 0.05))),
+        ("wall_back", Box((0.1, 10.0, 4.0)), make_transform((-3.0, 0.0, 1.0))),
+        ("wall_left", Box((10.0, 0.1, 4.0)), make_transform((0.0, -3.0, 1.0))),
+    ]
+
+
+FLOOR_Z = -0.75  # the table top is at z = 0 in the base frame
+
+
+class PyBulletScene:
+    """The robot at the origin (fixed base) on a table-height base, a floor and two walls, and primitive bodies.
+
+    The floor and walls give depth cameras a background, as in a lab; they lie outside the perception workspace.
+    """
+
+    def __init__(self, robot: RobotModel, client: int | None = None, room: bool = True):
+        self.robot = robot
+        self.client = pb.connect(pb.DIRECT) if client is None else client
+        self._owns_client = client is None
+        self.body = pb.loadURDF(str(robot.urdf_path), useFixedBase=True, physicsClientId=self.client)
+        self.joint_index: dict[str, int] = {}
+        self.link_index: dict[str, int] = {}
+        for j in range(pb.getNumJoints(self.body, physicsClientId=self.client)):
+            info = pb.getJointInfo(self.body, j, physicsClientId=self.client)
+            self.joint_index[info[1].decode()] = j
+            self.link_index[info[12].decode()] = j
+        for name, value in robot.passive_joint_positions.items():
+            pb.resetJointState(self.body, self.joint_index[name], value, physicsClientId=self.client)
+        self.objects: dict[str, int] = {}
+        self.room: dict[str, int] = {}
+        if room:
+            for name, shape, pose in room_geometry():
+                self.room[name] = self._create(shape, pose)
+
+    def close(self) -> None:
+        if self._owns_client:
+            pb.disconnect(self.client)
+
+    def set_q(self, q) -> None:
+        for name, value in zip(self.robot.joint_names, q):
+            pb.resetJointState(self.body, self.joint_index[name], float(value), physicsClientId=self.client)
+
+    def add(self, name: str, shape: Shape, pose: np.ndarray) -> int:
+        body = self._create(shape, pose)
+        self.objects[name] = body
+        return body
+
+    def _create(self, shape: Shape, pose: np.ndarray) -> int:
+        c = self.client
+        if isinstance(shape, Box):
+            col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[s / 2 for s in shape.size], physicsClientId=c)
+            vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[s / 2 for s in shape.size], physicsClientId=c)
+        elif isinstance(shape, Sphere):
+            col = pb.createCollisionShape(pb.GEOM_SPHERE, radius=shape.radius, physicsClientId=c)
+            vis = pb.createVisualShape(pb.GEOM_SPHERE, radius=shape.radius, physicsClientId=c)
+        elif isinstance(shape, Cylinder):
+            col = pb.createCollisionShape(pb.GEOM_CYLINDER, radius=shape.radius, height=shape.length, physicsClientId=c)
+            vis = pb.createVisualShape(pb.GEOM_CYLINDER, radius=shape.radius, length=shape.length, physicsClientId=c)
+        else:
+            raise TypeError(f"the simulator has no {type(shape).__name__} yet")
+        return pb.createMultiBody(
+            0,
+            col,
+            vis,
+            basePosition=pose[:3, 3].tolist(),
+            baseOrientation=matrix_to_quat(pose[:3, :3]).tolist(),
+            physicsClientId=c,
+        )
+
+    def move(self, name: str, pose: np.ndarray) -> None:
+        pb.resetBasePositionAndOrientation(
+            self.objects[name], pose[:3, 3].tolist(), matrix_to_quat(pose[:3, :3]).tolist(), physicsClientId=self.client
+        )
+
+    def remove(self, name: str) -> None:
+        pb.removeBody(self.objects.pop(name), physicsClientId=self.client)
