@@ -99,7 +99,11 @@ class RobotConfig(_Section):
 class CollisionConfig(_Section):
     padding: float = Field(0.01, ge=0.0, le=0.2, description="Safety padding around the robot vs. the world [m].")
     path_resolution: float = Field(
-        0.01, gt=0.0, le=0.2, description="Max displacement of any robot point between two path checks [m]."
+        0.02,
+        gt=0.0,
+        le=0.2,
+        description="Max displacement of any robot point between two path checks [m]; "
+        "at most 2 x padding keeps the unpadded robot collision-free between checks.",
     )
     allowed_contacts: list[tuple[str, str]] = Field(
         default_factory=list, description="[link, object] pairs allowed to touch, e.g. the base on its table."
@@ -233,10 +237,30 @@ class PerceptionConfig(_Section):
         return self
 
 
+class PlanningConfig(_Section):
+    planner: str = Field("RRTConnect", description="Default OMPL planner (see replanner.planning.PLANNERS).")
+    deadline: float = Field(1.0, gt=0.0, le=60.0, description="Default planning deadline [s], retries included.")
+    attempt_time: float = Field(0.25, gt=0.0, description="Time per attempt before retrying with a fresh seed [s].")
+    simplify_time: float = Field(0.015, ge=0.0, description="Shortcutting budget inside the deadline [s].")
+    range: float | None = Field(1.5, gt=0.0, description="Planner step [rad]; null: OMPL's default.")
+    search_coarseness: float = Field(
+        4.0,
+        ge=1.0,
+        le=10.0,
+        description="Motions are checked this much coarser while searching; the path found is "
+        "checked at collision.path_resolution (and searched again finely if that fails).",
+    )
+    tube_radius: float = Field(0.1, gt=0.0, le=1.0, description="Timed curve's max distance from the path [rad].")
+    ik_restarts: int = Field(16, ge=1, le=256)
+    position_tolerance: float = Field(0.002, gt=0.0, description="Cartesian goal position tolerance [m].")
+    orientation_tolerance: float = Field(0.02, gt=0.0, description="Cartesian goal orientation tolerance [rad].")
+
+
 class ReplannerConfig(_Section):
     robot: RobotConfig
     collision: CollisionConfig = Field(default_factory=CollisionConfig)
     perception: PerceptionConfig | None = None
+    planning: PlanningConfig = Field(default_factory=PlanningConfig)
 
 
 def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:

@@ -152,6 +152,63 @@ def bench_perception(
         _print_perception(result)
 
 
+def _print_planning(r: dict) -> None:
+    t = Table(title=f"planning: {r['robot']}, {r['planner']}, deadline {r['deadline_s']} s, seed {r['seed']}")
+    for col in (
+        "family",
+        "n",
+        "success",
+        "plan ms med / p95",
+        "timing ms med / p95",
+        "duration s med",
+        "naive s med",
+        "naive/timed",
+        "worst v / a / j",
+        "tube max",
+        "collisions",
+    ):
+        t.add_column(col)
+    for name, d in [*r["families"].items(), ("overall", r["overall"])]:
+        w = d.get("worst", {})
+        t.add_row(
+            name,
+            str(d["problems"]),
+            f"{d['success_rate']:.0%}",
+            f"{d['plan_ms']['median']:.0f} / {d['plan_ms']['p95']:.0f}",
+            f"{d['timing_ms']['median']:.1f} / {d['timing_ms']['p95']:.1f}",
+            f"{d['duration_s']['median']:.2f}",
+            f"{d['naive_duration_s']['median']:.2f}",
+            f"{d.get('naive_over_timed_total', 0):.3f}",
+            " / ".join(f"{w[k]:.3f}" for k in ("velocity_ratio", "acceleration_ratio", "jerk_ratio")) if w else "-",
+            f"{w['tube_deviation']:.3f}" if w else "-",
+            f"{d['colliding_samples']} of {d['samples']}" if "samples" in d else "-",
+        )
+    Console().print(t)
+
+
+@bench_app.command("planning")
+def bench_planning(
+    config: str = typer.Option("panda", "--config", "-c", help=CONFIG_HELP),
+    seed: int = typer.Option(0, min=0, help="Seed of the scenes, starts and goals (and OMPL)."),
+    per_family: int = typer.Option(25, min=1, help="Problems per scene family."),
+    deadline: float = typer.Option(None, min=0.01, help="Planning deadline [s]; default from the config."),
+    verify: bool = typer.Option(True, help="Check every trajectory at 1 kHz: limits, tube, pybullet collisions."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
+) -> None:
+    """Plan, simplify and time problems of four seeded scene families (table, shelf, bin, cage)."""
+    from replanner.bench import planning
+
+    try:
+        cfg = resolve_config(config)
+        result = planning.run(cfg, seed=seed, per_family=per_family, deadline=deadline, verify_all=verify)
+    except ReplannerError as err:
+        _fail(err)
+    if as_json:
+        print(json.dumps(result, indent=2))
+    else:
+        _print_planning(result)
+
+
 @app.command("demo")
 def demo() -> None:
     """Simulated pick-and-place with an intruding operator (not built yet)."""

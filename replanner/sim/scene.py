@@ -28,11 +28,12 @@ class PyBulletScene:
     The floor and walls give depth cameras a background, as in a lab; they lie outside the perception workspace.
     """
 
-    def __init__(self, robot: RobotModel, client: int | None = None, room: bool = True):
+    def __init__(self, robot: RobotModel, client: int | None = None, room: bool = True, self_collision: bool = False):
         self.robot = robot
         self.client = pb.connect(pb.DIRECT) if client is None else client
         self._owns_client = client is None
-        self.body = pb.loadURDF(str(robot.urdf_path), useFixedBase=True, physicsClientId=self.client)
+        flags = pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT if self_collision else 0
+        self.body = pb.loadURDF(str(robot.urdf_path), useFixedBase=True, flags=flags, physicsClientId=self.client)
         self.joint_index: dict[str, int] = {}
         self.link_index: dict[str, int] = {}
         for j in range(pb.getNumJoints(self.body, physicsClientId=self.client)):
@@ -81,6 +82,29 @@ class PyBulletScene:
             baseOrientation=matrix_to_quat(pose[:3, :3]).tolist(),
             physicsClientId=c,
         )
+
+    def contacts(
+        self, q, ignore: set[frozenset[str]] = frozenset(), depth: float = 0.0
+    ) -> list[tuple[str, str, float]]:
+        """Penetrations deeper than `depth` [m] between the robot and anything (itself with self_collision=True).
+
+        `ignore` holds pairs of names (robot link names, object names) that may touch.
+        """
+        self.set_q(q)
+        c = self.client
+        pb.performCollisionDetection(physicsClientId=c)
+        link_name = {v: k for k, v in self.link_index.items()}
+        link_name[-1] = self.robot.base_link
+        body_name = {v: k for k, v in {**self.objects, **self.room}.items()}
+        out = []
+        for pt in pb.getContactPoints(bodyA=self.body, physicsClientId=c):
+            if pt[8] >= -depth:
+                continue
+            a = link_name.get(pt[3], str(pt[3]))
+            b = link_name.get(pt[4], str(pt[4])) if pt[2] == self.body else body_name.get(pt[2], str(pt[2]))
+            if frozenset((a, b)) not in ignore:
+                out.append((a, b, pt[8]))
+        return out
 
     def move(self, name: str, pose: np.ndarray) -> None:
         pb.resetBasePositionAndOrientation(

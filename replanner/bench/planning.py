@@ -1,0 +1,298 @@
+"""`replanner bench planning`: four seeded scene families, plan + simplify + time, verified at 1 kHz."""
+
+from __future__ import annotations
+
+import itertools
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..collision import CollisionChecker
+from ..config import ReplannerConfig
+from ..errors import ReplannerError
+from ..geometry import Box, Cylinder, Shape
+from ..ik import IKError, solve_ik
+from ..planning import Planner, PlanningError
+from ..robot import RobotModel
+from ..trajectory import Trajectory, TrajectoryGenerator, distance_to_polyline
+from ..transforms import make_transform
+from ..world import World
+from .scenes import TABLE_SIZE
+from .stats import summary
+
+FAMILIES = ("table", "shelf", "bin", "cage")
+TIP = "panda_grasptarget"
+DOWN = (1.0, 0.0, 0.0, 0.0)  # tool z pointing down
+FORWARD = (0.0, 0.7071068, 0.0, 0.7071068)  # tool z pointing along +x
+
+
+@dataclass
+class Problem:
+    family: str
+    index: int
+    objects: list[tuple[str, Shape, np.ndarray]]
+    start: np.ndarray
+    goal: np.ndarray
+
+
+def _yaw(q_xyzw, yaw: float):
+    """Compose a rotation about the base z axis (yaw [rad]) before the tool orientation."""
+    from ..transforms import matrix_to_quat, quat_to_matrix
+
+    c, s = np.cos(yaw), np.sin(yaw)
+    Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    return matrix_to_quat(Rz @ quat_to_matrix(q_xyzw))
+
+
+def _table():
+    return [("table", Box(TABLE_SIZE), make_transform((0.3, 0.0, -TABLE_SIZE[2] / 2)))]
+
+
+def _family_objects(family: str, rng: np.random.Generator):
+    """Objects of one scene of the family and the goal regions (centre, tool orientation, yaw spread)."""
+    objs = _table()
+    if family == "table":
+        for k in range(int(rng.integers(3, 6))):
+            while True:
+                xy = rng.uniform([0.25, -0.6], [0.8, 0.6])
+                if np.linalg.norm(xy) > 0.3:
+                    break
+            h = rng.uniform(0.1, 0.4)
+            if rng.random() < 0.5:
+                shape = Box((rng.uniform(0.06, 0.2), rng.uniform(0.06, 0.2), h))
+            else:
+                shape = Cylinder(rng.uniform(0.03, 0.08), h)
+            objs.append((f"obj{k}", shape, make_transform((xy[0], xy[1], h / 2), (0, 0, np.sin(rng.uniform(0, 1)), 1))))
+        return objs, None
+    if family == "shelf":
+        x0 = rng.uniform(0.55, 0.65)
+        depth, half_w, t = 0.3, 0.48, 0.02
+        cx = x0 + depth / 2
+        objs += [
+            ("shelf_back", Box((t, 2 * half_w, 0.74)), make_transform((x0 + depth, 0, 0.37))),
+            ("shelf_left", Box((depth, t, 0.74)), make_transform((cx, -half_w, 0.37))),
+            ("shelf_right", Box((depth, t, 0.74)), make_transform((cx, half_w, 0.37))),
+            ("shelf_mid", Box((depth, 2 * half_w, t)), make_transform((cx, 0, 0.36))),
+            ("shelf_top", Box((depth, 2 * half_w, t)), make_transform((cx, 0, 0.73))),
+            ("shelf_div1", Box((depth, t, 0.72)), make_transform((cx, -0.16, 0.37))),
+            ("shelf_div2", Box((depth, t, 0.72)), make_transform((cx, 0.16, 0.37))),
+        ]
+        goals = [(np.array([x0 + 0.1, y, z]), FORWARD, 0.3) for y in (-0.32, 0.0, 0.32) for z in (0.18, 0.54)]
+        return objs, goals
+    if family == "bin":
+        y = rng.choice([-0.35, 0.35]) + rng.uniform(-0.05, 0.05)
+        c = np.array([rng.uniform(0.45, 0.6), y])
+        w, d, h, t = 0.32, 0.36, 0.22, 0.015
+        objs += [
+            ("bin_floor", Box((w, d, t)), make_transform((c[0], c[1], t / 2))),
+            ("bin_x0", Box((t, d, h)), make_transform((c[0] - w / 2, c[1], h / 2))),
+            ("bin_x1", Box((t, d, h)), make_transform((c[0] + w / 2, c[1], h / 2))),
+            ("bin_y0", Box((w, t, h)), make_transform((c[0], c[1] - d / 2, h / 2))),
+            ("bin_y1", Box((w, t, h)), make_transform((c[0], c[1] + d / 2, h / 2))),
+        ]
+        return objs, [(np.array([c[0], c[1], 0.11]), DOWN, np.pi)]
+    if family == "cage":
+        c = np.array([rng.uniform(0.5, 0.6), rng.uniform(-0.1, 0.1)])
+        hw, hd, h, r = 0.32, 0.3, 0.55, 0.012
+        corners = [(c[0] + sx * hd, c[1] + sy * hw) for sx in (-1, 1) for sy in (-1, 1)]
+        for k, (x, y) in enumerate(corners):
+            objs.append((f"post{k}", Cylinder(r, h), make_transform((x, y, h / 2))))
+        for k, z in enumerate((0.28, h)):
+            objs += [
+                (f"rail{k}a", Box((2 * hd, 2 * r, 2 * r)), make_transform((c[0], c[1] - hw, z))),
+                (f"rail{k}b", Box((2 * hd, 2 * r, 2 * r)), make_transform((c[0], c[1] + hw, z))),
+                (f"rail{k}c", Box((2 * r, 2 * hw, 2 * r)), make_transform((c[0] + hd, c[1], z))),
+            ]
+        objs.append(("top_bar", Box((2 * r, 2 * hw, 2 * r)), make_transform((c[0], c[1], h))))
+        return objs, [
+            (np.array([c[0] + 0.05 * s, c[1] + 0.12 * t, 0.15]), DOWN, np.pi) for s in (-1, 1) for t in (-1, 1)
+        ]
+    raise ValueError(f"unknown family {family!r}; families: {', '.join(FAMILIES)}")
+
+
+def _world(robot, objects) -> World:
+    world = World(robot)
+    for name, shape, pose in objects:
+        world.add(name, shape, pose)
+    return world
+
+
+def _random_valid(robot, checker, rng, tries: int = 2000):
+    for _ in range(tries):
+        q = robot.random_q(rng)
+        tip = robot.link_pose(q, TIP)[:3, 3]
+        if tip[2] > 0.05 and checker.is_valid(q):
+            return q
+    raise RuntimeError("no valid random configuration")
+
+
+def _ik_goal(robot, checker, rng, region, start):
+    center, quat, spread = region
+    for _ in range(30):
+        T = make_transform(center + rng.uniform(-0.03, 0.03, 3), _yaw(quat, rng.uniform(-spread, spread) / 2))
+        try:
+            return solve_ik(robot, TIP, T, checker=checker, seed=start, restarts=24, rng=rng).q
+        except IKError:
+            continue
+    return None
+
+
+def make_problems(robot: RobotModel, cfg: ReplannerConfig, family: str, n: int, seed: int) -> list[Problem]:
+    """`n` problems of a family; each has its own seeded scene, and a valid start and goal."""
+    rng = np.random.default_rng([seed, FAMILIES.index(family)])
+    problems = []
+    while len(problems) < n:
+        objects, regions = _family_objects(family, rng)
+        checker = CollisionChecker.from_config(robot, _world(robot, objects), cfg.collision)
+        if regions is None:  # the table: random pairs whose straight line is blocked (a real planning problem)
+            start, goal = _random_valid(robot, checker, rng), _random_valid(robot, checker, rng)
+            if checker.path_valid(np.array([start, goal])):
+                continue
+        else:
+            if family == "shelf":  # from one compartment to another
+                a, b = rng.choice(len(regions), 2, replace=False)
+                start = _ik_goal(robot, checker, rng, regions[a], robot.home)
+                goal = _ik_goal(robot, checker, rng, regions[b], robot.home)
+            else:
+                start = _random_valid(robot, checker, rng)
+                goal = _ik_goal(robot, checker, rng, regions[int(rng.integers(len(regions)))], start)
+            if start is None or goal is None:
+                continue
+        problems.append(Problem(family, len(problems), objects, start, goal))
+    return problems
+
+
+def verify(traj: Trajectory, tube: float, sim=None, ignore=frozenset(), rate: float = 1000.0) -> dict:
+    """Sampled at `rate` Hz: worst limit ratios by finite differences, tube deviation, pybullet penetrations."""
+    dt = 1.0 / rate
+    t = np.arange(0.0, traj.duration + dt, dt)
+    q = traj.evaluate(t, order=0)[0]
+    lim = traj.limits
+    v = np.diff(q, axis=0) / dt
+    a = np.diff(v, axis=0) / dt
+    j = np.diff(a, axis=0) / dt
+    out = {
+        "velocity_ratio": float((np.abs(v) / lim.velocity).max(initial=0)),
+        "acceleration_ratio": float((np.abs(a) / lim.acceleration).max(initial=0)),
+        "jerk_ratio": float((np.abs(j) / lim.jerk).max(initial=0)),
+        "tube_deviation": float(distance_to_polyline(q, traj.curve.polyline).max()),
+        "samples": len(t),
+    }
+    if sim is not None:
+        out["colliding_samples"] = int(sum(bool(sim.contacts(qq, ignore)) for qq in q))
+    return out
+
+
+def ignored_pairs(robot: RobotModel, allowed_contacts) -> set[frozenset[str]]:
+    """Name pairs pybullet may report that the model allows: unchecked link pairs and allowed contacts."""
+    checked = {frozenset((robot.bodies[a].link, robot.bodies[b].link)) for a, b in robot.self_collision_pairs}
+    links = {b.link for b in robot.bodies}
+    out = {frozenset(p) for p in itertools.combinations(links, 2)} - checked
+    return out | {frozenset(p) for p in allowed_contacts}
+
+
+def run(
+    cfg: ReplannerConfig,
+    *,
+    seed: int = 0,
+    per_family: int = 25,
+    deadline: float | None = None,
+    verify_all: bool = True,
+    families=FAMILIES,
+    progress=None,
+) -> dict:
+    robot = RobotModel.from_config(cfg.robot)
+    deadline = deadline or cfg.planning.deadline
+    rows = []
+    ignore = ignored_pairs(robot, cfg.collision.allowed_contacts)
+    total = per_family * len(families)
+    done = 0
+    planner_seeded = False
+    for family in families:
+        for p in make_problems(robot, cfg, family, per_family, seed):
+            checker = CollisionChecker.from_config(robot, _world(robot, p.objects), cfg.collision)
+            planner = Planner.from_config(checker, cfg.planning, seed=None if planner_seeded else seed)
+            planner_seeded = True
+            gen = TrajectoryGenerator(robot, checker, tube_radius=cfg.planning.tube_radius)
+            row = {"family": family, "index": p.index}
+            t0 = time.perf_counter()
+            try:
+                res = planner.plan(p.start, p.goal, deadline=deadline)
+            except PlanningError as err:
+                row.update(success=False, reason=err.reason, plan_ms=(time.perf_counter() - t0) * 1e3)
+                rows.append(row)
+                continue
+            row.update(
+                success=True,
+                plan_ms=(res.plan_time + res.simplify_time) * 1e3,
+                waypoints=len(res.path),
+                direct=res.direct,
+                attempts=res.attempts,
+            )
+            t1 = time.perf_counter()
+            try:
+                traj = gen.time(res.path)
+            except ReplannerError as err:
+                row.update(success=False, reason=f"timing: {err}")
+                rows.append(row)
+                continue
+            row["timing_ms"] = (time.perf_counter() - t1) * 1e3
+            row["duration_s"] = traj.duration
+            row["naive_duration_s"] = gen.time_naive(res.path).duration
+            if verify_all:
+                from ..sim.scene import PyBulletScene
+
+                sim = PyBulletScene(robot, room=False, self_collision=True)
+                for name, shape, pose in p.objects:
+                    sim.add(name, shape, pose)
+                row.update(verify(traj, cfg.planning.tube_radius, sim, ignore))
+                sim.close()
+            rows.append(row)
+            done += 1
+            if progress:
+                progress(done, total)
+    return summarize(rows, robot.name, seed, deadline, cfg)
+
+
+def summarize(rows: list[dict], robot: str, seed: int, deadline: float, cfg) -> dict:
+    def stats(sel):
+        ok = [r for r in sel if r["success"]]
+        d = {
+            "problems": len(sel),
+            "success_rate": len(ok) / max(len(sel), 1),
+            "plan_ms": summary([r["plan_ms"] for r in ok]),
+            "timing_ms": summary([r["timing_ms"] for r in ok]),
+            "duration_s": summary([r["duration_s"] for r in ok]),
+            "naive_duration_s": summary([r["naive_duration_s"] for r in ok]),
+            "direct_fraction": float(np.mean([r["direct"] for r in ok])) if ok else 0.0,
+        }
+        if ok:
+            d["naive_over_timed_total"] = sum(r["naive_duration_s"] for r in ok) / sum(r["duration_s"] for r in ok)
+            d["faster_than_naive"] = sum(r["duration_s"] < r["naive_duration_s"] - 1e-9 for r in ok)
+            d["slower_than_naive"] = sum(r["duration_s"] > r["naive_duration_s"] + 1e-9 for r in ok)
+        if ok and "velocity_ratio" in ok[0]:
+            d["worst"] = {
+                k: max(r[k] for r in ok)
+                for k in ("velocity_ratio", "acceleration_ratio", "jerk_ratio", "tube_deviation")
+            }
+            d["colliding_samples"] = sum(r["colliding_samples"] for r in ok)
+            d["samples"] = sum(r["samples"] for r in ok)
+        failures = [r.get("reason") for r in sel if not r["success"]]
+        if failures:
+            d["failures"] = failures
+        return d
+
+    families = sorted({r["family"] for r in rows}, key=FAMILIES.index)
+    return {
+        "bench": "planning",
+        "robot": robot,
+        "seed": seed,
+        "deadline_s": deadline,
+        "planner": cfg.planning.planner,
+        "tube_radius_rad": cfg.planning.tube_radius,
+        "families": {f: stats([r for r in rows if r["family"] == f]) for f in families},
+        "overall": stats(rows),
+        "bars": {"success_rate": 0.99, "plan_ms_median": 50.0, "timing_ms_median": 20.0},
+        "limit_tolerance": "finite differences at 1 kHz, ratio to the limit <= 1.001",
+    }

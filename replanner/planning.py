@@ -1,0 +1,368 @@
+"""Motion planning with OMPL (2.x Python bindings) over the robot's joint space, within a deadline.
+
+Validity comes from the `CollisionChecker`: single states through a Python callback, and whole motions
+through a `MotionValidator` subclass that checks every interpolated configuration of a segment in one batch.
+A failed attempt is retried with the planner's fresh random state until the deadline (paper 002's
+fallback); the path is then shortcut, with the same checker, within the same deadline.
+"""
+
+from __future__ import annotations
+
+import atexit
+import logging
+import time
+import weakref
+from dataclasses import dataclass, field
+
+import numpy as np
+from ompl import base as ob
+from ompl import geometric as og
+from ompl import util as ou
+
+from .collision import CollisionChecker, Contact
+from .errors import InvalidInputError, ReplannerError
+from .ik import IKError, solve_ik
+from .transforms import make_transform
+
+log = logging.getLogger(__name__)
+
+ou.setLogLevel(ou.LogLevel.LOG_WARN)
+_OMPL_SEEDED = False
+
+PLANNERS = {
+    "RRTConnect": og.RRTConnect,
+    "RRT": og.RRT,
+    "RRTstar": og.RRTstar,
+    "InformedRRTstar": og.InformedRRTstar,
+    "BITstar": og.BITstar,
+    "AORRTC": og.AORRTC,
+    "PRM": og.PRM,
+    "PRMstar": og.PRMstar,
+    "KPIECE1": og.KPIECE1,
+    "BKPIECE1": og.BKPIECE1,
+    "LBKPIECE1": og.LBKPIECE1,
+}
+
+
+class PlanningError(ReplannerError):
+    """Planning failed; `reason` is a short code, the message says what to change."""
+
+    reason = "failed"
+
+
+class StartInvalid(PlanningError):
+    reason = "start_invalid"
+
+    def __init__(self, message: str, contact: Contact | None = None):
+        self.contact = contact
+        super().__init__(message)
+
+
+class GoalInvalid(PlanningError):
+    reason = "goal_invalid"
+
+    def __init__(self, message: str, contact: Contact | None = None):
+        self.contact = contact
+        super().__init__(message)
+
+
+class NoSolution(PlanningError):
+    reason = "no_solution"
+
+
+class UnknownPlanner(PlanningError, InvalidInputError):
+    reason = "unknown_planner"
+
+
+@dataclass(frozen=True)
+class JointGoal:
+    """A goal configuration [rad], one value per active joint."""
+
+    q: np.ndarray
+
+
+@dataclass(frozen=True)
+class PoseGoal:
+    """A goal pose of `link` in the base frame: position [m], quaternion (x, y, z, w), tolerances [m], [rad]."""
+
+    link: str
+    position: tuple[float, float, float]
+    quat_xyzw: tuple[float, float, float, float]
+    position_tolerance: float | None = None
+    orientation_tolerance: float | None = None
+
+
+@dataclass
+class PlanResult:
+    """A collision-free joint-space path (M, dof) from start to goal and how it was found."""
+
+    path: np.ndarray
+    goal: np.ndarray
+    planner: str
+    attempts: int
+    plan_time: float  # [s] search, retries included
+    simplify_time: float  # [s]
+    direct: bool = False  # the straight line was free: no search needed
+    raw_waypoints: int = 0
+    timings: dict = field(default_factory=dict)
+
+
+class _BatchMotionValidator(ob.MotionValidator):
+    """Checks a whole straight motion in one batch of the checker."""
+
+    def __init__(self, si, planner: Planner):
+        super().__init__(si)
+        self._planner = weakref.ref(planner)  # OMPL holds this object: a strong reference would be a cycle
+
+    def checkMotion(self, s1, s2) -> bool:
+        p = self._planner()
+        return p is not None and p.checker.path_valid(np.array([p._to_np(s1), p._to_np(s2)]), p._search_resolution)
+
+
+_LIVE: weakref.WeakSet = weakref.WeakSet()
+
+
+@atexit.register
+def _release_ompl() -> None:
+    # nanobind reports OMPL objects still alive at exit as leaks: drop them first
+    for planner in list(_LIVE):
+        planner.si = planner.space = planner._mv = None
+
+
+class Planner:
+    """Plans joint-space paths for one robot against the checker's world.
+
+    Args:
+        checker: validity of states and motions.
+        planner: default OMPL planner name (see PLANNERS).
+        attempt_time: [s] per attempt before retrying with fresh random state.
+        simplify_time: [s] shortcutting budget (inside the deadline).
+        planner_range: planner step [rad]; None keeps OMPL's default.
+        search_coarseness: motions are checked this many times coarser while searching (the result is then
+            checked finely, and searched again finely if a thin obstacle slipped through).
+        seed: seeds OMPL's random generator once for this process (reproducible runs), and the shortcutting.
+    """
+
+    def __init__(
+        self,
+        checker: CollisionChecker,
+        *,
+        planner: str = "RRTConnect",
+        attempt_time: float = 0.25,
+        simplify_time: float = 0.015,
+        planner_range: float | None = None,
+        ik_restarts: int = 16,
+        position_tolerance: float = 0.002,
+        orientation_tolerance: float = 0.02,
+        search_coarseness: float = 4.0,
+        seed: int | None = None,
+    ):
+        self.checker = checker
+        self.robot = checker.robot
+        self._planner_class(planner)  # raises on an unknown name
+        self.default_planner = planner
+        self.attempt_time = float(attempt_time)
+        self.simplify_time = float(simplify_time)
+        self.planner_range = planner_range
+        self.ik_restarts = ik_restarts
+        self.position_tolerance = position_tolerance
+        self.orientation_tolerance = orientation_tolerance
+        global _OMPL_SEEDED
+        if seed is not None and not _OMPL_SEEDED:  # OMPL's generator is per process and takes one seed
+            ou.RNG.setSeed(max(int(seed), 1))  # OMPL refuses 0
+            _OMPL_SEEDED = True
+        self._rng = np.random.default_rng(seed)
+        # motions are checked coarser while searching; the found path is checked at the full resolution
+        self.search_coarseness = float(search_coarseness)
+        self._search_resolution = self.search_coarseness * checker.path_resolution
+        dof = self.robot.dof
+        self.space = ob.RealVectorStateSpace(dof)
+        bounds = ob.RealVectorBounds(dof)
+        for i in range(dof):
+            bounds.setLow(i, float(self.robot.limits.lower[i]))
+            bounds.setHigh(i, float(self.robot.limits.upper[i]))
+        self.space.setBounds(bounds)
+        self.si = ob.SpaceInformation(self.space)
+        ref = weakref.ref(self)
+
+        def state_valid(s) -> bool:
+            p = ref()
+            return p is not None and p.checker.is_valid(p._to_np(s))
+
+        self.si.setStateValidityChecker(state_valid)
+        self._mv = _BatchMotionValidator(self.si, self)
+        self.si.setMotionValidator(self._mv)
+        self.si.setup()
+        _LIVE.add(self)
+
+    @classmethod
+    def from_config(cls, checker: CollisionChecker, cfg, seed: int | None = None) -> Planner:
+        return cls(
+            checker,
+            planner=cfg.planner,
+            attempt_time=cfg.attempt_time,
+            simplify_time=cfg.simplify_time,
+            planner_range=cfg.range,
+            ik_restarts=cfg.ik_restarts,
+            position_tolerance=cfg.position_tolerance,
+            orientation_tolerance=cfg.orientation_tolerance,
+            search_coarseness=cfg.search_coarseness,
+            seed=seed,
+        )
+
+    # ------------------------------------------------------------------ conversions
+    def _to_np(self, s) -> np.ndarray:
+        return np.array([s[i] for i in range(self.robot.dof)])
+
+    def _alloc(self, q: np.ndarray):
+        st = self.space.allocState()
+        for i, v in enumerate(q):
+            st[i] = float(v)
+        return st
+
+    @staticmethod
+    def _planner_class(name: str):
+        try:
+            return PLANNERS[name]
+        except (KeyError, TypeError):
+            raise UnknownPlanner(f"unknown planner {name!r}; available: {', '.join(PLANNERS)}") from None
+
+    # ------------------------------------------------------------------ goals
+    def resolve_goal(self, start: np.ndarray, goal) -> np.ndarray:
+        """Goal configuration: a JointGoal's q (checked), or IK of a PoseGoal nearest the start."""
+        r = self.robot
+        if isinstance(goal, PoseGoal):
+            try:
+                T = make_transform(goal.position, goal.quat_xyzw)
+            except InvalidInputError as err:
+                raise GoalInvalid(f"goal pose: {err}") from None
+            r.link_index(goal.link)
+            try:
+                res = solve_ik(
+                    r,
+                    goal.link,
+                    T,
+                    checker=self.checker,
+                    seed=start,
+                    restarts=self.ik_restarts,
+                    position_tolerance=goal.position_tolerance or self.position_tolerance,
+                    orientation_tolerance=goal.orientation_tolerance or self.orientation_tolerance,
+                    rng=self._rng,
+                )
+            except IKError as err:
+                raise GoalInvalid(f"goal pose of {goal.link}: {err}") from None
+            return res.q
+        q = goal.q if isinstance(goal, JointGoal) else goal
+        try:
+            q = r.check_within_limits(q, "goal")
+        except InvalidInputError as err:
+            raise GoalInvalid(str(err)) from None
+        if q.ndim != 1:
+            raise GoalInvalid(f"goal must be one configuration of {r.dof} joints, got shape {q.shape}")
+        contact = self.checker.check(q)
+        if contact is not None:
+            raise GoalInvalid(f"goal is in collision: {contact}", contact)
+        return q
+
+    # ------------------------------------------------------------------ planning
+    def plan(self, start, goal, *, planner: str | None = None, deadline: float = 1.0) -> PlanResult:
+        """A collision-free path from start to goal (JointGoal, PoseGoal or an array) within `deadline` [s]."""
+        t_begin = time.perf_counter()
+        if not (isinstance(deadline, int | float) and np.isfinite(deadline) and deadline > 0):
+            raise InvalidInputError(f"deadline must be a positive number of seconds, got {deadline!r}")
+        name = planner or self.default_planner
+        cls = self._planner_class(name)
+        r = self.robot
+        try:
+            start = r.check_within_limits(start, "start")
+        except InvalidInputError as err:
+            raise StartInvalid(str(err)) from None
+        contact = self.checker.check(start)
+        if contact is not None:
+            raise StartInvalid(f"start is in collision: {contact}", contact)
+        q_goal = self.resolve_goal(start, goal)
+        t_end = t_begin + deadline
+        timings = {"goal": time.perf_counter() - t_begin}
+        if self.checker.path_valid(np.array([start, q_goal])):
+            t = time.perf_counter() - t_begin
+            return PlanResult(
+                np.array([start, q_goal]), q_goal, name, 0, t, 0.0, direct=True, raw_waypoints=2, timings=timings
+            )
+        ss = og.SimpleSetup(self.si)
+        ss.setStartAndGoalStates(self._alloc(start), self._alloc(q_goal))
+        algo = cls(self.si)
+        if self.planner_range is not None and hasattr(algo, "setRange"):
+            algo.setRange(self.planner_range)
+        ss.setPlanner(algo)
+        attempts, found = 0, False
+        pdef = ss.getProblemDefinition()
+        self._search_resolution = self.search_coarseness * self.checker.path_resolution
+        while not found:
+            remaining = t_end - time.perf_counter()
+            if remaining <= 0:
+                break
+            attempts += 1
+            budget = min(remaining, self.attempt_time)
+            ptc = ob.plannerOrTerminationCondition(
+                ob.exactSolnPlannerTerminationCondition(pdef), ob.timedPlannerTerminationCondition(budget)
+            )
+            status = ss.solve(ptc)
+            found = bool(status) and pdef.hasExactSolution()
+            if found and not self.checker.path_valid(self._solution(ss)):
+                found = False  # a thin obstacle slipped between the coarse search checks: search finely
+                self._search_resolution = self.checker.path_resolution
+            if not found:
+                ss.clear()  # a fresh tree: the retry explores from new random samples
+        plan_time = time.perf_counter() - t_begin
+        if not found:
+            raise NoSolution(
+                f"{name} found no path in {deadline:.3f} s ({attempts} attempts); give a longer deadline, "
+                "another planner, or check that the goal is reachable"
+            )
+        W = self._solution(ss)
+        raw = len(W)
+        t_simp = time.perf_counter()
+        W = self.shortcut(W, min(self.simplify_time, max(t_end - t_simp, 0.0)))
+        simplify_time = time.perf_counter() - t_simp
+        timings["search"] = plan_time
+        return PlanResult(W, q_goal, name, attempts, plan_time, simplify_time, raw_waypoints=raw, timings=timings)
+
+    def _solution(self, ss) -> np.ndarray:
+        path = ss.getSolutionPath()
+        return np.array([self._to_np(path.getState(i)) for i in range(path.getStateCount())])
+
+    # ------------------------------------------------------------------ simplification
+    def shortcut(self, W: np.ndarray, budget: float) -> np.ndarray:
+        """Fewer, shorter segments: skip waypoints, try random shortcuts until `budget` [s], skip again."""
+        t_end = time.perf_counter() + budget
+        W = self._skip_waypoints(W)
+        misses = 0
+        while time.perf_counter() < t_end and len(W) > 2 and misses < 6:
+            seg = np.linalg.norm(np.diff(W, axis=0), axis=1)
+            acc = np.concatenate([[0.0], np.cumsum(seg)])
+            a, b = np.sort(self._rng.uniform(0, acc[-1], 2))
+            ia = min(int(np.searchsorted(acc, a, side="right") - 1), len(seg) - 1)
+            ib = min(int(np.searchsorted(acc, b, side="right") - 1), len(seg) - 1)
+            if ia == ib:
+                continue
+            pa = W[ia] + (a - acc[ia]) / seg[ia] * (W[ia + 1] - W[ia])
+            pb = W[ib] + (b - acc[ib]) / seg[ib] * (W[ib + 1] - W[ib])
+            if self.checker.path_valid(np.array([pa, pb])):
+                W = np.vstack([W[: ia + 1], pa, pb, W[ib + 1 :]])
+                misses = 0
+            else:
+                misses += 1
+        return self._skip_waypoints(W)
+
+    def _skip_waypoints(self, W: np.ndarray) -> np.ndarray:
+        """From each kept waypoint, go straight to the farthest later one that is reachable in a straight line."""
+        keep = np.concatenate([[True], np.linalg.norm(np.diff(W, axis=0), axis=1) > 1e-9])
+        W = W[keep]
+        out, i = [W[0]], 0
+        while i < len(W) - 1:
+            j = len(W) - 1
+            while j > i + 1 and not self.checker.path_valid(np.array([W[i], W[j]])):
+                j -= 1
+            out.append(W[j])
+            i = j
+        return np.array(out)

@@ -1,0 +1,168 @@
+"""Planning with OMPL and IK: solutions are valid, failures say why, bad requests are rejected clearly."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from replanner.bench.scenes import add_table
+from replanner.collision import CollisionChecker
+from replanner.errors import InvalidInputError
+from replanner.geometry import Box
+from replanner.ik import IKError, solve_ik
+from replanner.planning import GoalInvalid, NoSolution, Planner, PoseGoal, StartInvalid, UnknownPlanner
+from replanner.transforms import make_transform, matrix_to_quat, rotation_angle
+from replanner.world import World
+
+A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
+B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
+
+
+@pytest.fixture(scope="module")
+def wall_world(panda, panda_cfg):
+    world = World(panda)
+    add_table(world)
+    world.add("wall", Box((0.3, 0.05, 0.6)), make_transform((0.5, 0.0, 0.3)))
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    return world, checker
+
+
+@pytest.fixture(scope="module")
+def planner(wall_world, panda_cfg):
+    return Planner.from_config(wall_world[1], panda_cfg.planning, seed=3)
+
+
+def test_plans_around_a_wall(planner, wall_world):
+    checker = wall_world[1]
+    assert not checker.path_valid(np.array([A, B]))  # the straight swing is blocked
+    res = planner.plan(A, B, deadline=2.0)
+    assert not res.direct and res.attempts >= 1
+    np.testing.assert_allclose(res.path[0], A)
+    np.testing.assert_allclose(res.path[-1], B)
+    assert checker.check_path(res.path).valid  # at the full resolution
+    assert res.plan_time + res.simplify_time < 2.0
+
+
+@pytest.mark.parametrize("name", ["RRTConnect", "RRTstar", "BITstar", "AORRTC", "PRM"])
+def test_planners_by_name(planner, wall_world, name):
+    res = planner.plan(A, B, planner=name, deadline=5.0)
+    assert res.planner == name
+    assert wall_world[1].check_path(res.path).valid
+
+
+def test_free_straight_line_needs_no_search(planner):
+    res = planner.plan(A, A + np.r_[0.3, 0, 0, 0, 0, 0, 0])
+    assert res.direct and len(res.path) == 2
+
+
+def test_no_solution_in_time_retries_and_says_so(panda, panda_cfg):
+    """The arm stands straight up in a closed sleeve that starts above its elbow: it cannot bend out."""
+    up = np.array([0.0, 0.0, 0.0, -0.0698, 0.0, 0.3, 0.785])
+    forward = np.array([0.0, 1.4, 0.0, -0.3, 0.0, 1.7, 0.785])  # reaching low, under the sleeve
+    T = panda.fk(up)
+    pts = np.vstack(
+        [
+            b.shape.vertices @ (T[panda.link_index(b.link)] @ b.T_link_body)[:3, :3].T
+            + (T[panda.link_index(b.link)] @ b.T_link_body)[:3, 3]
+            for b in panda.bodies
+        ]
+    )
+    lo, hi = pts.min(0), pts.max(0)
+    gap, t, bottom = 0.03, 0.02, 0.62
+    top = hi[2] + gap
+    mid, height = (bottom + top) / 2, top - bottom
+    cx, cy = (lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2
+    wx, wy = hi[0] - lo[0] + 2 * gap, hi[1] - lo[1] + 2 * gap
+    world = World(panda)
+    world.add("px", Box((t, wy + 2 * t, height)), make_transform((hi[0] + gap + t / 2, cy, mid)))
+    world.add("nx", Box((t, wy + 2 * t, height)), make_transform((lo[0] - gap - t / 2, cy, mid)))
+    world.add("py", Box((wx, t, height)), make_transform((cx, hi[1] + gap + t / 2, mid)))
+    world.add("ny", Box((wx, t, height)), make_transform((cx, lo[1] - gap - t / 2, mid)))
+    world.add("lid", Box((wx + 2 * t, wy + 2 * t, t)), make_transform((cx, cy, top + t / 2)))
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    assert checker.is_valid(up) and checker.is_valid(forward)
+    planner = Planner(checker, attempt_time=0.15, seed=1)
+    t0 = time.perf_counter()
+    with pytest.raises(NoSolution, match=r"no path in 0.500 s \((\d+) attempts\)") as err:
+        planner.plan(up, forward, deadline=0.5)
+    assert time.perf_counter() - t0 < 1.5
+    assert int(str(err.value).split("(")[1].split()[0]) >= 2  # retried with fresh trees
+
+
+@pytest.mark.parametrize(
+    "start,goal,planner_name,deadline,error,match",
+    [
+        (A[:6], B, None, 1.0, StartInvalid, "7 values"),
+        (A, np.r_[B, 0.0], None, 1.0, GoalInvalid, "7 values"),
+        (np.r_[np.nan, A[1:]], B, None, 1.0, StartInvalid, "NaN"),
+        (A, np.r_[B[:3], 0.5, B[4:]], None, 1.0, GoalInvalid, r"panda_joint4 = 0.5000 is outside its limits"),
+        (A, B, "RRTTurbo", 1.0, UnknownPlanner, "available: RRTConnect"),
+        (A, B, None, -1.0, InvalidInputError, "deadline must be a positive"),
+        (A, B, None, float("nan"), InvalidInputError, "deadline"),
+    ],
+)
+def test_bad_requests_name_the_problem(planner, start, goal, planner_name, deadline, error, match):
+    with pytest.raises(error, match=match):
+        planner.plan(start, goal, planner=planner_name, deadline=deadline)
+
+
+def test_goal_and_start_in_collision_name_link_and_object(planner, wall_world, panda):
+    into_wall = A.copy()
+    hand_at = None
+    for q0 in np.linspace(-0.5, 0.5, 41):  # swing joint 1 until the arm is in the wall
+        into_wall[0] = q0
+        c = wall_world[1].check(into_wall)
+        if c is not None and c.other == "wall":
+            hand_at = into_wall.copy()
+            break
+    assert hand_at is not None
+    with pytest.raises(GoalInvalid, match=r"goal is in collision: panda_\w+ collides with object 'wall'") as err:
+        planner.plan(A, hand_at)
+    assert err.value.contact.other == "wall"
+    with pytest.raises(StartInvalid, match="start is in collision: .*'wall'"):
+        planner.plan(hand_at, A)
+
+
+def test_pose_goal_is_reached_by_ik_nearest_the_start(planner, panda):
+    T = panda.link_pose(B, "panda_grasptarget")
+    goal = PoseGoal("panda_grasptarget", tuple(T[:3, 3]), tuple(matrix_to_quat(T[:3, :3])))
+    res = planner.plan(A, goal, deadline=2.0)
+    reached = panda.link_pose(res.path[-1], "panda_grasptarget")
+    assert np.linalg.norm(reached[:3, 3] - T[:3, 3]) <= 0.002
+    assert rotation_angle(reached[:3, :3].T @ T[:3, :3]) <= 0.02
+    with pytest.raises(GoalInvalid, match="beyond the panda_grasptarget reach"):
+        planner.plan(A, PoseGoal("panda_grasptarget", (3.0, 0.0, 0.5), (0, 0, 0, 1)))
+    with pytest.raises(GoalInvalid, match="quaternion"):
+        planner.plan(A, PoseGoal("panda_grasptarget", (0.5, 0.0, 0.5), (0, 0, 0, 0)))
+
+
+def test_ik_solves_reachable_poses_and_fails_fast_on_unreachable(panda, panda_cfg):
+    world = World(panda)
+    add_table(world)
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    rng = np.random.default_rng(7)
+    targets = []
+    while len(targets) < 100:
+        q = panda.random_q(rng)
+        if checker.is_valid(q):
+            targets.append(panda.link_pose(q, "panda_grasptarget"))
+    solved = 0
+    for T in targets:
+        try:
+            res = solve_ik(panda, "panda_grasptarget", T, checker=checker, seed=panda.home, restarts=16, rng=rng)
+        except IKError:
+            continue
+        reached = panda.link_pose(res.q, "panda_grasptarget")
+        assert np.linalg.norm(reached[:3, 3] - T[:3, 3]) <= 0.002
+        assert rotation_angle(reached[:3, :3].T @ T[:3, :3]) <= 0.02
+        assert checker.is_valid(res.q) and panda.limits.within(res.q)
+        solved += 1
+    print(f"IK solved {solved} of {len(targets)} reachable poses")
+    assert solved >= 95
+    far = make_transform((2.0, 0.0, 0.5))
+    t = time.perf_counter()
+    with pytest.raises(IKError, match="beyond"):
+        solve_ik(panda, "panda_grasptarget", far, checker=checker)
+    assert time.perf_counter() - t < 0.05

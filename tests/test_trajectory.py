@@ -1,0 +1,172 @@
+"""Jerk-limited trajectories: limits at 1 kHz, the tube, pybullet collision checks, splicing and braking."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from replanner.bench import planning as bench
+from replanner.collision import CollisionChecker
+from replanner.errors import InvalidInputError
+from replanner.planning import Planner
+from replanner.sim.scene import PyBulletScene
+from replanner.trajectory import TrajectoryError, TrajectoryGenerator, distance_to_polyline, progress_along
+
+DT = 1e-3
+TOL = 1.001  # finite differences may exceed a limit by 0.1 % (rounding), never more
+
+
+def fd_ratios(q: np.ndarray, limits) -> tuple[float, float, float]:
+    v = np.diff(q, axis=0) / DT
+    a = np.diff(v, axis=0) / DT
+    j = np.diff(a, axis=0) / DT
+    return (
+        float((np.abs(v) / limits.velocity).max()),
+        float((np.abs(a) / limits.acceleration).max()),
+        float((np.abs(j) / limits.jerk).max()),
+    )
+
+
+@pytest.fixture(scope="module")
+def planned(panda, panda_cfg):
+    """Two problems of each bench family: (problem, checker, path)."""
+    out = []
+    for family in bench.FAMILIES:
+        for p in bench.make_problems(panda, panda_cfg, family, 2, seed=11):
+            checker = CollisionChecker.from_config(panda, bench._world(panda, p.objects), panda_cfg.collision)
+            res = Planner.from_config(checker, panda_cfg.planning, seed=5).plan(p.start, p.goal, deadline=3.0)
+            out.append((p, checker, res.path))
+    return out
+
+
+def test_timed_trajectories_hold_limits_tube_and_are_collision_free_in_pybullet(panda, panda_cfg, planned):
+    ignore = bench.ignored_pairs(panda, panda_cfg.collision.allowed_contacts)
+    timed = naive = 0.0
+    for p, checker, path in planned:
+        gen = TrajectoryGenerator(panda, checker, tube_radius=panda_cfg.planning.tube_radius)
+        traj = gen.time(path)
+        t = np.arange(0.0, traj.duration + DT, DT)
+        q = traj.evaluate(t, order=0)[0]
+        assert max(fd_ratios(q, traj.limits)) <= TOL
+        assert distance_to_polyline(q, path).max() <= panda_cfg.planning.tube_radius + 1e-6
+        np.testing.assert_allclose(q[0], path[0], atol=1e-9)
+        np.testing.assert_allclose(q[-1], path[-1], atol=1e-6)
+        sim = PyBulletScene(panda, room=False, self_collision=True)
+        for name, shape, pose in p.objects:
+            sim.add(name, shape, pose)
+        hits = [c for qq in q[::5] for c in sim.contacts(qq, ignore)]
+        sim.close()
+        assert not hits, hits[:3]
+        timed += traj.duration
+        naive += gen.time_naive(path).duration
+        assert traj.duration <= gen.time_naive(path).duration + 1e-9
+    print(f"timed {timed:.2f} s vs stop-at-every-waypoint {naive:.2f} s (ratio {naive / timed:.3f})")
+    assert timed < naive
+
+
+def test_scaling_slows_down_and_keeps_the_scaled_limits(panda, planned):
+    _, checker, path = planned[0]
+    gen = TrajectoryGenerator(panda, checker)
+    full, slow = gen.time(path), gen.time(path, velocity_scale=0.5, acceleration_scale=0.25)
+    assert slow.duration > full.duration * 1.5
+    q = slow.evaluate(np.arange(0, slow.duration, DT), order=0)[0]
+    v, a, j = fd_ratios(q, slow.limits)
+    assert max(v, a, j) <= TOL
+    np.testing.assert_allclose(slow.limits.velocity, panda.limits.velocity * 0.5)
+
+
+def test_splice_is_continuous_never_backwards_and_within_limits(panda, planned):
+    _, checker, path = planned[2]
+    gen = TrajectoryGenerator(panda, checker)
+    traj = gen.time(path)
+    t = np.arange(0.0, traj.duration, DT)
+    speed = np.linalg.norm(traj.evaluate(t)[1], axis=1)
+    t0 = t[int(np.argmax(speed))]  # mid-motion at full speed, on the 1 kHz grid
+    q0, qd0, qdd0 = traj.state_at(t0)
+    assert np.linalg.norm(qd0) > 1.0
+    # a new path that veers off from where the arm is heading
+    ahead = q0 + 0.3 * qd0 / np.linalg.norm(qd0)
+    side = np.zeros(7)
+    side[[1, 2]] = [0.25, -0.3]
+    new_path = np.array([q0, ahead + side, panda.home])
+    new = gen.splice(traj, t0, new_path)
+    q1, qd1, qdd1 = new.state_at(0.0)
+    np.testing.assert_allclose(q1, q0, atol=1e-6)
+    np.testing.assert_allclose(qd1, qd0, atol=1e-6)
+    np.testing.assert_allclose(qdd1, qdd0, atol=1e-6)
+    # what the arm executes: the old trajectory up to t0, then the new one
+    executed = np.vstack(
+        [
+            traj.evaluate(np.arange(0.0, t0, DT), order=0)[0],
+            new.evaluate(np.arange(0.0, new.duration + DT, DT), order=0)[0],
+        ]
+    )
+    assert max(fd_ratios(executed, new.limits)) <= TOL
+    progress = progress_along(new.evaluate(np.arange(0.0, new.duration, DT), order=0)[0], new_path)
+    assert np.diff(progress).min() >= -1e-6
+    np.testing.assert_allclose(new.evaluate(np.array([new.duration]), order=0)[0][0], panda.home, atol=1e-6)
+
+
+def test_splice_onto_a_path_that_turns_back_is_refused(panda, planned):
+    _, checker, path = planned[2]
+    gen = TrajectoryGenerator(panda, checker)
+    traj = gen.time(path)
+    t0 = traj.duration / 2
+    q0, qd0, qdd0 = traj.state_at(t0)
+    back = np.array([q0, q0 - 0.8 * qd0 / np.linalg.norm(qd0)])
+    with pytest.raises(TrajectoryError, match="brake and plan from rest"):
+        gen.splice(traj, t0, back)
+
+
+def test_brake_from_full_speed_stops_on_the_path_within_jerk_limits(panda, panda_cfg, planned):
+    for _, checker, path in planned[::3]:
+        gen = TrajectoryGenerator(panda, checker, tube_radius=panda_cfg.planning.tube_radius)
+        traj = gen.time(path)
+        t = np.arange(0.0, traj.duration, DT)
+        t0 = t[int(np.argmax(np.linalg.norm(traj.evaluate(t)[1], axis=1)))]
+        stop = gen.brake(traj, t0)
+        q0, qd0, qdd0 = traj.state_at(t0)
+        s = stop.state_at(0.0)
+        np.testing.assert_allclose(s[0], q0, atol=1e-9)
+        np.testing.assert_allclose(s[1], qd0, atol=1e-6)
+        np.testing.assert_allclose(s[2], qdd0, atol=1e-6)
+        executed = np.vstack(
+            [
+                traj.evaluate(np.arange(0.0, t0, DT), order=0)[0],
+                stop.evaluate(np.arange(0.0, stop.duration + DT, DT), order=0)[0],
+            ]
+        )
+        assert max(fd_ratios(executed, stop.limits)) <= TOL
+        qe, qde, qdde = stop.state_at(stop.duration)
+        assert np.abs(qde).max() < 1e-9 and np.abs(qdde).max() < 1e-6  # at rest
+        q = stop.evaluate(np.arange(0.0, stop.duration, DT), order=0)[0]
+        assert distance_to_polyline(q, path).max() <= panda_cfg.planning.tube_radius + 1e-6
+        # never longer than the plan's own stop (equal when the arm is already braking hard for the end)
+        assert stop.duration <= traj.duration - t0 + 1e-9
+        assert stop.s_at(stop.duration) <= traj.s_at(traj.duration) + 1e-9
+        # on the path itself, not a straight line: every sample is a point of the planned curve
+        s_vals = stop.path_state(np.arange(0.0, stop.duration, DT))[0]
+        np.testing.assert_allclose(q, traj.curve.eval(s_vals), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "path,kwargs,match",
+    [
+        (np.zeros((1, 7)), {}, "at least 2 waypoints"),
+        (np.zeros((3, 6)), {}, "7 values"),
+        (np.array([[0.0] * 7, [np.nan] * 7]), {}, "NaN"),
+        (np.array([[0.0] * 7, [0.1] * 7]), {"velocity_scale": 0.0}, r"velocity_scale must be in \(0, 1\]"),
+        (np.array([[0.0] * 7, [0.1] * 7]), {"acceleration_scale": 1.5}, "acceleration_scale"),
+    ],
+)
+def test_bad_timing_requests(panda, path, kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        TrajectoryGenerator(panda).time(path, **kwargs)
+
+
+def test_sampling_for_the_robot(panda):
+    traj = TrajectoryGenerator(panda).time(np.array([panda.home, panda.home + 0.2]))
+    t, q, qd, qdd = traj.sample(0.01)
+    assert t[0] == 0 and t[-1] == pytest.approx(traj.duration) and np.all(np.diff(t) > 0)
+    np.testing.assert_allclose(q[-1], panda.home + 0.2, atol=1e-6)
+    assert np.abs(qd[[0, -1]]).max() < 1e-9
