@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 
 from replanner.bench import planning as bench
+from replanner.bench.scenes import add_table
 from replanner.collision import CollisionChecker
 from replanner.errors import InvalidInputError
 from replanner.planning import Planner
 from replanner.sim.scene import PyBulletScene
 from replanner.trajectory import TrajectoryError, TrajectoryGenerator, distance_to_polyline, progress_along
+from replanner.world import World
 
 DT = 1e-3
 TOL = 1.001  # finite differences may exceed a limit by 0.1 % (rounding), never more
@@ -75,10 +77,26 @@ def test_scaling_slows_down_and_keeps_the_scaled_limits(panda, planned):
     np.testing.assert_allclose(slow.limits.velocity, panda.limits.velocity * 0.5)
 
 
-def test_splice_is_continuous_never_backwards_and_within_limits(panda, planned):
-    _, checker, path = planned[2]
+@pytest.fixture(scope="module")
+def table_motion(panda, panda_cfg):
+    """A fixed scene (the table) and a fixed valid path: no planner randomness in the splice tests."""
+    world = World(panda)
+    add_table(world)
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    path = np.array(
+        [
+            [-1.5, 0.2, 0.0, -1.9, 0.0, 2.1, 0.785],
+            [0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785],
+            [1.5, 0.2, 0.0, -1.9, 0.0, 2.1, 0.785],
+        ]
+    )
+    assert checker.check_path(path).valid
     gen = TrajectoryGenerator(panda, checker)
-    traj = gen.time(path)
+    return checker, gen, gen.time(path)
+
+
+def test_splice_is_continuous_never_backwards_and_within_limits(panda, table_motion):
+    checker, gen, traj = table_motion
     t = np.arange(0.0, traj.duration, DT)
     speed = np.linalg.norm(traj.evaluate(t)[1], axis=1)
     t0 = t[int(np.argmax(speed))]  # mid-motion at full speed, on the 1 kHz grid
@@ -89,6 +107,7 @@ def test_splice_is_continuous_never_backwards_and_within_limits(panda, planned):
     side = np.zeros(7)
     side[[1, 2]] = [0.25, -0.3]
     new_path = np.array([q0, ahead + side, panda.home])
+    assert checker.check_path(new_path).valid
     new = gen.splice(traj, t0, new_path)
     q1, qd1, qdd1 = new.state_at(0.0)
     np.testing.assert_allclose(q1, q0, atol=1e-6)
@@ -105,14 +124,13 @@ def test_splice_is_continuous_never_backwards_and_within_limits(panda, planned):
     progress = progress_along(new.evaluate(np.arange(0.0, new.duration, DT), order=0)[0], new_path)
     assert np.diff(progress).min() >= -1e-6
     np.testing.assert_allclose(new.evaluate(np.array([new.duration]), order=0)[0][0], panda.home, atol=1e-6)
+    assert checker.check_path(new.evaluate(np.arange(0.0, new.duration, 0.01), order=0)[0]).valid
 
 
-def test_splice_onto_a_path_that_turns_back_is_refused(panda, planned):
-    _, checker, path = planned[2]
-    gen = TrajectoryGenerator(panda, checker)
-    traj = gen.time(path)
+def test_splice_onto_a_path_that_turns_back_is_refused(table_motion):
+    _, gen, traj = table_motion
     t0 = traj.duration / 2
-    q0, qd0, qdd0 = traj.state_at(t0)
+    q0, qd0, _ = traj.state_at(t0)
     back = np.array([q0, q0 - 0.8 * qd0 / np.linalg.norm(qd0)])
     with pytest.raises(TrajectoryError, match="brake and plan from rest"):
         gen.splice(traj, t0, back)
