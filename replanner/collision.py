@@ -311,7 +311,7 @@ class CollisionChecker:
         half = (np.abs(T[:, None, :, :3, :3]) @ h)[..., 0]
         return center - half, center + half
 
-    def _candidates(self, snap, scene: _Scene, Q: np.ndarray, T: np.ndarray):
+    def _candidates(self, snap, scene: _Scene, Q: np.ndarray, T: np.ndarray, octree_only: bool = False):
         """Boolean masks of pairs the narrowphase must test: octree (N, B), objects (N, B, O), self (N, P)."""
         lo, hi = self._aabbs(T, scene.box_c, scene.box_h)
         elo, ehi = lo[:, 0], hi[:, 0]
@@ -320,6 +320,8 @@ class CollisionChecker:
             cand_oct = occ.any_in_boxes(elo, ehi) & scene.octree_mask
         else:
             cand_oct = np.zeros(elo.shape[:2], dtype=bool)
+        if octree_only:
+            return cand_oct, np.zeros(elo.shape[:2] + (0,), dtype=bool), np.zeros((len(T), 0), dtype=bool)
         if len(scene.obstacles):
             # per axis: np.all over a trailing axis of 3 is several times slower
             cand_obj = scene.env_mask & (elo[:, :, None, 0] <= scene.obs_hi[:, 0])
@@ -379,8 +381,13 @@ class CollisionChecker:
         bad = np.flatnonzero((q < lim.lower - 1e-9) | (q > lim.upper + 1e-9))
         return Contact("limits", self.robot.joint_names[bad[0]], "") if len(bad) else None
 
-    def _first_invalid(self, Q: np.ndarray, stop_at_first: bool) -> tuple[np.ndarray, list[Contact | None]]:
-        """Validity (N,) of configurations Q (N, dof); contacts of the invalid ones (None where valid)."""
+    def _first_invalid(
+        self, Q: np.ndarray, stop_at_first: bool, octree_only: bool = False
+    ) -> tuple[np.ndarray, list[Contact | None]]:
+        """Validity (N,) of configurations Q (N, dof); contacts of the invalid ones (None where valid).
+
+        octree_only: test the occupancy map alone (for paths already checked against everything else).
+        """
         snap, scene, objs, octree = self._current()
         N = len(Q)
         valid = np.ones(N, dtype=bool)
@@ -389,7 +396,7 @@ class CollisionChecker:
             lim = self.robot.limits
             valid &= ((Q >= lim.lower - 1e-9) & (Q <= lim.upper + 1e-9)).all(axis=1)
         T = self._body_poses(scene, Q)
-        cand_oct, cand_obj, cand_self = self._candidates(snap, scene, Q, T)
+        cand_oct, cand_obj, cand_self = self._candidates(snap, scene, Q, T, octree_only)
         # the narrowphase work per configuration, as plain lists: no numpy call per pair
         tests: dict[int, list] = {}
         for n, b in np.argwhere(cand_oct).tolist():
@@ -502,18 +509,19 @@ class CollisionChecker:
         pos = np.concatenate([seg + frac, [len(dW)]])
         return Q, pos
 
-    def path_valid(self, waypoints, resolution: float | None = None) -> bool:
+    def path_valid(self, waypoints, resolution: float | None = None, octree_only: bool = False) -> bool:
         """True if the joint-space segments between waypoints are valid; cheaper than `check_path` when invalid.
 
         Tests every 8th interpolated configuration first, so a collision is usually found early.
+        octree_only: test against the occupancy map alone (the monitor's case: the rest was checked at planning).
         """
         Q, _ = self.interpolate(waypoints, resolution)
         stride = 8
-        if not self._first_invalid(Q[::stride], True)[0].all():
+        if not self._first_invalid(Q[::stride], True, octree_only)[0].all():
             return False
         rest = np.delete(Q, np.arange(0, len(Q), stride), axis=0)
         for start in range(0, len(rest), 512):
-            if not self._first_invalid(rest[start : start + 512], True)[0].all():
+            if not self._first_invalid(rest[start : start + 512], True, octree_only)[0].all():
                 return False
         return True
 

@@ -206,6 +206,13 @@ class OccupancyUpdateConfig(_Section):
         "beyond its centre by this plus half a voxel.",
     )
     decay_after: float | None = Field(10.0, gt=0.0, description="Voxels not hit for this long are dropped [s].")
+    shadow_depth: float = Field(
+        0.08,
+        ge=0.0,
+        le=0.5,
+        description="Occupy this much space behind every observed surface, along the "
+        "camera's rays [m]: a camera sees no back faces, and what hides behind a surface is likely solid (0: off).",
+    )
 
 
 class PerceptionConfig(_Section):
@@ -256,11 +263,38 @@ class PlanningConfig(_Section):
     orientation_tolerance: float = Field(0.02, gt=0.0, description="Cartesian goal orientation tolerance [rad].")
 
 
+class ControllerConfig(_Section):
+    policy: Literal["wait_and_resume", "abort"] = Field(
+        "wait_and_resume", description="After a safety brake: hold and resume when clear, or fail the goal."
+    )
+    safety_distance: float = Field(0.03, ge=0.0, le=0.5, description="Brake when the robot gets this close [m].")
+    check_rate_hz: float = Field(150.0, gt=0.0, le=1000.0, description="Max remaining-path checks per second.")
+    clear_checks: int = Field(3, ge=1, le=100, description="Clear checks in a row that cancel a pending replan.")
+    replan_deadline: float = Field(0.15, gt=0.0, le=10.0, description="Planning budget of a replan while moving [s].")
+    splice_margin: float = Field(0.05, ge=0.0, le=1.0, description="Extra lead time before the splice lands [s].")
+    pending_timeout: float = Field(1.5, gt=0.0, description="Replanning may go on this long before braking [s].")
+    pending_speed_factor: float = Field(
+        0.5, gt=0.0, le=1.0, description="While a replan is pending the arm goes on at this share of its speed."
+    )
+    hold_timeout: float = Field(10.0, gt=0.0, description="wait_and_resume gives up after holding this long [s].")
+    hold_replan_interval: float = Field(1.0, gt=0.0, description="While holding, plan anew this often [s].")
+    joint_state_timeout: float = Field(0.25, gt=0.0, description="Joint states silent this long: brake, fail [s].")
+    sensor_timeout: float = Field(1.0, gt=0.0, description="A configured camera silent this long: brake, fail [s].")
+    goal_tolerance: float = Field(0.01, gt=0.0, description="Reached when every joint is this close [rad].")
+    settle_timeout: float = Field(1.0, gt=0.0, description="Time after the trajectory's end to reach the goal [s].")
+    brake_latency: float = Field(0.01, ge=0.0, le=0.5, description="A brake starts this long after it is decided [s].")
+    planning_process: bool = Field(
+        True, description="Plan in a child process (a second core; with the GIL a thread shares the monitor's core)."
+    )
+    driver_rate_hz: float = Field(200.0, gt=0.0, le=2000.0, description="Kinematic driver's joint-state rate [Hz].")
+
+
 class ReplannerConfig(_Section):
     robot: RobotConfig
     collision: CollisionConfig = Field(default_factory=CollisionConfig)
     perception: PerceptionConfig | None = None
     planning: PlanningConfig = Field(default_factory=PlanningConfig)
+    controller: ControllerConfig = Field(default_factory=ControllerConfig)
 
 
 def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import atexit
 import logging
+import threading
 import time
 import weakref
 from dataclasses import dataclass, field
@@ -68,6 +69,10 @@ class GoalInvalid(PlanningError):
 
 class NoSolution(PlanningError):
     reason = "no_solution"
+
+
+class PlanningCanceled(PlanningError):
+    reason = "canceled"
 
 
 class UnknownPlanner(PlanningError, InvalidInputError):
@@ -265,8 +270,13 @@ class Planner:
         return q
 
     # ------------------------------------------------------------------ planning
-    def plan(self, start, goal, *, planner: str | None = None, deadline: float = 1.0) -> PlanResult:
-        """A collision-free path from start to goal (JointGoal, PoseGoal or an array) within `deadline` [s]."""
+    def plan(
+        self, start, goal, *, planner: str | None = None, deadline: float = 1.0, cancel: threading.Event | None = None
+    ) -> PlanResult:
+        """A collision-free path from start to goal (JointGoal, PoseGoal or an array) within `deadline` [s].
+
+        `cancel`, when set from another thread, stops the search at once (raises PlanningCanceled).
+        """
         t_begin = time.perf_counter()
         if not (isinstance(deadline, int | float) and np.isfinite(deadline) and deadline > 0):
             raise InvalidInputError(f"deadline must be a positive number of seconds, got {deadline!r}")
@@ -299,13 +309,15 @@ class Planner:
         self._search_resolution = self.search_coarseness * self.checker.path_resolution
         while not found:
             remaining = t_end - time.perf_counter()
-            if remaining <= 0:
+            if remaining <= 0 or (cancel is not None and cancel.is_set()):
                 break
             attempts += 1
             budget = min(remaining, self.attempt_time)
             ptc = ob.plannerOrTerminationCondition(
                 ob.exactSolnPlannerTerminationCondition(pdef), ob.timedPlannerTerminationCondition(budget)
             )
+            if cancel is not None:
+                ptc = ob.plannerOrTerminationCondition(ptc, ob.PlannerTerminationCondition(cancel.is_set))
             status = ss.solve(ptc)
             found = bool(status) and pdef.hasExactSolution()
             if found and not self.checker.path_valid(self._solution(ss)):
@@ -314,6 +326,8 @@ class Planner:
             if not found:
                 ss.clear()  # a fresh tree: the retry explores from new random samples
         plan_time = time.perf_counter() - t_begin
+        if cancel is not None and cancel.is_set():
+            raise PlanningCanceled(f"planning canceled after {plan_time:.3f} s")
         if not found:
             raise NoSolution(
                 f"{name} found no path in {deadline:.3f} s ({attempts} attempts); give a longer deadline, "

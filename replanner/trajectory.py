@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -624,6 +625,23 @@ class TrajectoryGenerator:
             traj.curve, _time_law(traj.curve, traj.limits, s0, v0, a0, end), traj.limits, traj.joint_names
         )
 
+    def slow_down(self, traj: Trajectory, t: float, factor: float) -> Trajectory:
+        """The rest of `traj` from time t on its own curve, with the velocity limits scaled by `factor` in (0, 1]."""
+        if not (0.0 < factor <= 1.0):
+            raise InvalidInputError(f"factor must be in (0, 1], got {factor}")
+        s0, v0, a0, _ = (float(x[0]) for x in traj.law.eval(np.array([t])))
+        lim = _Limits(traj.limits.velocity * factor, traj.limits.acceleration, traj.limits.jerk)
+        law = _time_law(traj.curve, lim, s0, v0, a0, traj.curve.length)
+        return Trajectory(traj.curve, law, lim, traj.joint_names)
+
+    def resume(self, traj: Trajectory) -> Trajectory:
+        """From where `traj` ends at rest (a brake's stop), on to the end of its curve (the original goal)."""
+        s_stop = traj.s_at(traj.duration)
+        if traj.curve.length - s_stop < 1e-9:
+            return Trajectory(traj.curve, _law_from([], 0.0, s_stop), traj.limits, traj.joint_names)
+        law = _time_law(traj.curve, traj.limits, s_stop, 0.0, 0.0, traj.curve.length)
+        return Trajectory(traj.curve, law, traj.limits, traj.joint_names)
+
     @staticmethod
     def _can_stop(curve: Curve, lim: _Limits, s0: float, v0: float, stop: float) -> bool:
         first = int(curve.piece_at(np.array([s0]))[0])
@@ -645,13 +663,15 @@ class TrajectoryGenerator:
         velocity_scale: float = 1.0,
         acceleration_scale: float = 1.0,
         report: TimingReport | None = None,
+        budget: float = 0.1,
     ) -> Trajectory:
         """Continue `traj` from its state at time t0 onto new_path (whose first waypoint is that state's position).
 
         The result starts exactly in that state (position, velocity, acceleration): it may first follow the old
         curve a little (a lead-in, to slow down before turning), then a quintic transition merges tangentially
         into the new path. Progress along the new path never decreases. Raises TrajectoryError if no such
-        transition exists (the new path turns back against the motion): brake and plan from rest instead.
+        transition exists (the new path turns back against the motion) or none is found within `budget` [s]:
+        brake and plan from rest instead.
         """
         s0, v0, a0, _ = (float(x[0]) for x in traj.law.eval(np.array([t0])))
         q0 = traj.curve.eval(np.array([s0]))[0]
@@ -664,7 +684,11 @@ class TrajectoryGenerator:
         old_end = float(traj.law.eval(np.array([traj.duration]))[0][0])
         total = float(np.sum(np.linalg.norm(np.diff(W, axis=0), axis=1)))
         last_err = "no transition fits"
+        give_up = time.perf_counter() + budget
         for lead in (0.0, 0.1, 0.25, 0.5, 0.8, 1.2):
+            if time.perf_counter() > give_up:
+                last_err += f" (searched for {budget:.2f} s)"
+                break
             if lead > 0 and s0 + lead > old_end - 1e-6:
                 break
             head = _clip(traj.curve, s0, s0 + lead) if lead > 0 else []

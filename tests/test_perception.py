@@ -274,3 +274,22 @@ def test_no_joint_state_yet_is_rejected(panda):
     with pytest.raises(CloudRejected, match="no joint state yet"):
         rig.perception.integrate(CloudFrame("front", 1.0, cloud, organized=True))
     rig.close()
+
+
+def test_shadows_fill_space_behind_surfaces_but_never_the_robot(rig):
+    center, size = (0.55, -0.3, 0.15), (0.12, 0.12, 0.3)
+    rig.sim.add("box", Box(size), make_transform(center))
+    rep = rig.frame()
+    assert rep.counts["shadow"] > 0
+    occ = rig.world.occupancy
+    T = rig.cameras["front"].T_base_camera
+    # voxels behind the front face, inside the box: no camera saw them, the shadow put them there
+    depth_from_cam = np.linalg.norm(occ.centers - T[:3, 3], axis=1)
+    inside = np.all(np.abs(occ.centers - center) <= np.array(size) / 2 - 0.015, axis=1)
+    assert inside.sum() > 20 and depth_from_cam[inside].min() > 0
+    robot_pts = []
+    T_links = rig.robot.fk(rig.q)
+    for b in rig.robot.bodies:
+        Tb = T_links[rig.robot.link_index(b.link)] @ b.T_link_body
+        robot_pts.append(b.shape.vertices @ Tb[:3, :3].T + Tb[:3, 3])
+    assert not _in_map(occ, np.vstack(robot_pts)).any()

@@ -16,6 +16,8 @@ from replanner.planning import GoalInvalid, NoSolution, Planner, PoseGoal, Start
 from replanner.transforms import make_transform, matrix_to_quat, rotation_angle
 from replanner.world import World
 
+from .helpers import ARM_FORWARD, ARM_UP, sleeve
+
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 
@@ -59,28 +61,10 @@ def test_free_straight_line_needs_no_search(planner):
 
 def test_no_solution_in_time_retries_and_says_so(panda, panda_cfg):
     """The arm stands straight up in a closed sleeve that starts above its elbow: it cannot bend out."""
-    up = np.array([0.0, 0.0, 0.0, -0.0698, 0.0, 0.3, 0.785])
-    forward = np.array([0.0, 1.4, 0.0, -0.3, 0.0, 1.7, 0.785])  # reaching low, under the sleeve
-    T = panda.fk(up)
-    pts = np.vstack(
-        [
-            b.shape.vertices @ (T[panda.link_index(b.link)] @ b.T_link_body)[:3, :3].T
-            + (T[panda.link_index(b.link)] @ b.T_link_body)[:3, 3]
-            for b in panda.bodies
-        ]
-    )
-    lo, hi = pts.min(0), pts.max(0)
-    gap, t, bottom = 0.03, 0.02, 0.62
-    top = hi[2] + gap
-    mid, height = (bottom + top) / 2, top - bottom
-    cx, cy = (lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2
-    wx, wy = hi[0] - lo[0] + 2 * gap, hi[1] - lo[1] + 2 * gap
+    up, forward = ARM_UP, ARM_FORWARD
     world = World(panda)
-    world.add("px", Box((t, wy + 2 * t, height)), make_transform((hi[0] + gap + t / 2, cy, mid)))
-    world.add("nx", Box((t, wy + 2 * t, height)), make_transform((lo[0] - gap - t / 2, cy, mid)))
-    world.add("py", Box((wx, t, height)), make_transform((cx, hi[1] + gap + t / 2, mid)))
-    world.add("ny", Box((wx, t, height)), make_transform((cx, lo[1] - gap - t / 2, mid)))
-    world.add("lid", Box((wx + 2 * t, wy + 2 * t, t)), make_transform((cx, cy, top + t / 2)))
+    for name, shape, pose in sleeve(panda):
+        world.add(name, shape, pose)
     checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
     assert checker.is_valid(up) and checker.is_valid(forward)
     planner = Planner(checker, attempt_time=0.15, seed=1)

@@ -18,6 +18,15 @@ DT = 1e-3
 TOL = 1.001  # finite differences may exceed a limit by 0.1 % (rounding), never more
 
 
+def executed(old, t0: float, new) -> np.ndarray:
+    """What the arm runs: `old` until t0, then `new`, sampled every DT on one integer grid (no seam artefact)."""
+    n0 = int(round(t0 / DT))
+    n1 = int(np.ceil(new.duration / DT)) + 1
+    before = old.evaluate(np.arange(n0) * DT, order=0)[0]
+    after = new.evaluate(np.arange(n1) * DT, order=0)[0]
+    return np.vstack([before, after])
+
+
 def fd_ratios(q: np.ndarray, limits) -> tuple[float, float, float]:
     v = np.diff(q, axis=0) / DT
     a = np.diff(v, axis=0) / DT
@@ -188,3 +197,27 @@ def test_sampling_for_the_robot(panda):
     assert t[0] == 0 and t[-1] == pytest.approx(traj.duration) and np.all(np.diff(t) > 0)
     np.testing.assert_allclose(q[-1], panda.home + 0.2, atol=1e-6)
     assert np.abs(qd[[0, -1]]).max() < 1e-9
+
+
+def test_slow_down_stays_on_the_curve_continuous_and_slower(panda, table_motion):
+    _, gen, traj = table_motion
+    t0 = round(traj.duration / 3, 3)  # on the 1 ms grid
+    slow = gen.slow_down(traj, t0, 0.5)
+    for a, b in zip(slow.state_at(0.0), traj.state_at(t0)):
+        np.testing.assert_allclose(a, b, atol=1e-6)
+    assert slow.duration > traj.duration - t0
+    v, a, j = fd_ratios(executed(traj, t0, slow), traj.limits)
+    assert max(a, j) <= TOL and v <= TOL
+    tail = slow.evaluate(np.arange(0.5, slow.duration, DT))[1]  # once slowed, within the halved velocity limits
+    assert (np.abs(tail) / (panda.limits.velocity * 0.5)).max() <= 1.001
+    s = slow.path_state(np.arange(0.0, slow.duration, DT))[0]
+    np.testing.assert_allclose(slow.evaluate(np.arange(0.0, slow.duration, DT), order=0)[0], traj.curve.eval(s))
+
+
+def test_resume_after_a_brake_goes_on_to_the_goal(table_motion):
+    _, gen, traj = table_motion
+    stop = gen.brake(traj, traj.duration / 3)
+    rest = gen.resume(stop)
+    np.testing.assert_allclose(rest.state_at(0.0)[0], stop.state_at(stop.duration)[0], atol=1e-9)
+    np.testing.assert_allclose(rest.end, traj.end, atol=1e-6)
+    assert np.abs(rest.state_at(0.0)[1]).max() < 1e-9

@@ -31,8 +31,13 @@ class LogOddsGrid:
         """Frames of seeing through a voxel that clear it from the clamp (the clearing bound)."""
         return math.ceil(self.cfg.clamp_max / -self.cfg.miss - 1e-9)
 
-    def update(self, hits: np.ndarray, misses: np.ndarray, stamp: float) -> None:
-        """Apply one frame: `hits` and `misses` are unique flat indices; a voxel in both counts as hit."""
+    def update(self, hits: np.ndarray, misses: np.ndarray, stamp: float, shadow: np.ndarray | None = None) -> None:
+        """Apply one frame: `hits` and `misses` are unique flat indices; a voxel in both counts as hit.
+
+        `shadow`: voxels hidden just behind the hits; they count as hits (occluded space next to a surface).
+        """
+        if shadow is not None and len(shadow):
+            hits = np.union1d(hits, shadow)
         lo = self.logodds
         if len(misses):
             lo[misses] += self.cfg.miss

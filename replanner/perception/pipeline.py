@@ -105,6 +105,9 @@ class Perception:
         self.joint_states = JointStateBuffer(robot.dof)
         sf = cfg.self_filter
         self.self_filter = SelfFilter(robot, sf.padding, sf.static_objects_padding) if sf.enabled else None
+        # inferred voxels stay two voxels clear of known surfaces too: next to one, no camera could clear them
+        static = None if sf.static_objects_padding is None else sf.static_objects_padding + 2 * cfg.resolution
+        self._shadow_filter = SelfFilter(robot, sf.padding, static) if sf.enabled else None
         self._broadphase_cell = broadphase_cell
 
     @property
@@ -266,11 +269,15 @@ class Perception:
                 flat = self.grid.unique(flat)
             rep.counts["self_filter"] = len(flat)
             lap("self_filter")
+            shadow = self._shadow(flat, T[:3, 3], q, snapshot)
+            rep.counts["shadow"] = len(shadow)
+            lap("shadow")
         else:
-            flat = np.zeros(0, dtype=np.int64)
+            flat = shadow = np.zeros(0, dtype=np.int64)
         hits = flat
-        misses = self._seen_through(sensor, T, pts, ok, frame.organized, depth, hits)
-        self.map.update(hits, misses, stamp)
+        hit_now = np.union1d(hits, shadow) if len(shadow) else hits
+        misses = self._seen_through(sensor, T, pts, ok, frame.organized, depth, hit_now)
+        self.map.update(hits, misses, stamp, shadow)
         rep.decayed = self.map.decay(stamp)
         rep.hits, rep.misses = len(hits), len(misses)
         lap("occupancy")
@@ -280,6 +287,26 @@ class Perception:
         sensor.last_stamp = stamp
         sensor.frames += 1
         return rep
+
+    def _shadow(self, surface: np.ndarray, origin: np.ndarray, q, snapshot) -> np.ndarray:
+        """Voxels just behind the observed surface voxels along the camera's rays (occluded, likely solid)."""
+        depth = self.cfg.occupancy.shadow_depth
+        if depth <= 0 or not len(surface):
+            return np.zeros(0, dtype=np.int64)
+        res = self.cfg.resolution
+        c = self.grid.centers(surface)
+        d = c - origin
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        steps = np.arange(1, int(round(depth / res)) + 1) * res
+        pts = (c[:, None, :] + steps[None, :, None] * d[:, None, :]).reshape(-1, 3)
+        inside = np.all((pts >= self.grid.lo) & (pts <= self.grid.hi), axis=1)
+        pts = pts[inside]
+        if not len(pts):
+            return np.zeros(0, dtype=np.int64)
+        flat = self.grid.unique(self.grid.flat(pts))
+        if self._shadow_filter is not None:  # a shadow never covers the robot or known objects
+            flat = flat[self._shadow_filter.keep_mask(self.grid.centers(flat), q, snapshot)]
+        return flat
 
     def _outlier_mask(self, voxels: np.ndarray) -> np.ndarray:
         """Keep mask over unique voxels: enough occupied neighbours and/or PCL's statistical test."""

@@ -1,0 +1,140 @@
+"""`replanner bench monitor`: remaining-path checks against a ~50k-voxel octree; check rate idle vs planning."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from ..collision import CollisionChecker
+from ..config import ReplannerConfig
+from ..controller import Controller, Goal, State
+from ..driver import KinematicDriver
+from ..planning import Planner, PlanningError
+from ..robot import RobotModel
+from ..trajectory import TrajectoryGenerator
+from ..world import World
+from .scenes import add_table, clutter_map
+from .stats import summary
+
+A = np.array([-1.4, 0.2, 0.0, -1.9, 0.0, 2.1, 0.785])
+B = np.array([1.4, 0.2, 0.0, -1.9, 0.0, 2.1, 0.785])
+
+
+def run(cfg: ReplannerConfig, *, seed: int = 0, voxels: int = 50_000, samples: int = 300, window: float = 2.0) -> dict:
+    rng = np.random.default_rng(seed)
+    robot = RobotModel.from_config(cfg.robot)
+    world = World(robot)
+    add_table(world)
+    checker = CollisionChecker.from_config(robot, world, cfg.collision)
+    while True:  # a seeded clutter that leaves the A -> B swing free, so every check runs to the end
+        world.set_occupancy(clutter_map(rng, voxels, broadphase_cell=cfg.collision.broadphase_cell))
+        if checker.path_valid(np.array([A, B])):
+            break
+    planner = Planner.from_config(checker, cfg.planning, seed=seed)
+    gen = TrajectoryGenerator(robot, checker, tube_radius=cfg.planning.tube_radius)
+    driver = KinematicDriver(A, rate_hz=cfg.controller.driver_rate_hz)
+    ctl = Controller(
+        robot, checker, planner, gen, driver.execute, cfg.controller, default_deadline=cfg.planning.deadline
+    )
+    driver.subscribe(ctl.on_joint_state)
+    driver.start()
+    ctl.start()
+    try:
+        # 1. the check itself, on remaining paths of >= 100 waypoints along a slow swing
+        time.sleep(0.1)
+        h = ctl.submit(Goal("swing", joints=B, velocity_scale=0.08))
+        deadline = time.monotonic() + 5
+        while ctl.state != State.MONITORING.value and time.monotonic() < deadline:
+            time.sleep(0.01)
+        stop_feed = threading.Event()
+
+        def maps():  # a camera-rate stream of map updates, so the monitor checks on map updates too
+            while not stop_feed.is_set():
+                ctl.on_map_update()
+                stop_feed.wait(1 / 30)
+
+        feeder = threading.Thread(target=maps, daemon=True)
+        feeder.start()
+        lengths, durations, full = [], [], []
+        give_up = time.monotonic() + 20
+        while len(durations) < samples and time.monotonic() < give_up:
+            rem = ctl.remaining_path(time.monotonic())
+            if rem is None:
+                time.sleep(0.005)
+                continue
+            if len(rem[0]) < 100:
+                break
+            t0 = time.perf_counter()
+            checker.path_valid(rem[0], octree_only=True)  # what the monitor runs while the static scene is unchanged
+            durations.append((time.perf_counter() - t0) * 1e3)
+            t0 = time.perf_counter()
+            checker.path_valid(rem[0])  # after a scene edit: everything
+            full.append((time.perf_counter() - t0) * 1e3)
+            lengths.append(len(rem[0]))
+            time.sleep(0.003)
+        # 2. the controller's own check rate, idle and while a plan is being computed alongside
+        idle = _rate(ctl, window)
+        busy_stop = threading.Event()
+        plans = []
+
+        pairs = _blocked_pairs(robot, checker, rng, 20)
+
+        def plan_forever():
+            other = Planner.from_config(checker, cfg.planning)
+            k = 0
+            while not busy_stop.is_set():
+                t0 = time.perf_counter()
+                try:
+                    other.plan(*pairs[k % len(pairs)], deadline=1.0)
+                except PlanningError:
+                    pass
+                plans.append(time.perf_counter() - t0)
+                k += 1
+
+        worker = threading.Thread(target=plan_forever, daemon=True)
+        worker.start()
+        time.sleep(0.1)
+        busy = _rate(ctl, window)
+        busy_stop.set()
+        worker.join(5)
+        stop_feed.set()
+        still_monitoring = ctl.state == State.MONITORING.value
+        ctl.cancel("swing") if h.result is None else None
+    finally:
+        ctl.stop()
+        driver.stop()
+    return {
+        "bench": "monitor",
+        "robot": robot.name,
+        "seed": seed,
+        "octree_voxels": len(world.occupancy),
+        "remaining_path_check_ms": summary(durations),
+        "remaining_path_check": "against the octree (static objects and self-collision were checked at planning)",
+        "full_check_ms": summary(full),
+        "remaining_path_waypoints": summary(lengths),
+        "check_rate_cap_hz": cfg.controller.check_rate_hz,
+        "check_rate_idle_hz": idle,
+        "check_rate_while_planning_hz": busy,
+        "plans_during_window": len(plans),
+        "plan_ms_during_window": summary(np.array(plans) * 1e3),
+        "monitoring_throughout": still_monitoring,
+        "bars": {"check_ms_median": 5.0, "rate_while_planning_hz": 100.0},
+    }
+
+
+def _blocked_pairs(robot, checker, rng, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Valid start/goal pairs whose straight line is blocked: real planning work."""
+    out = []
+    while len(out) < n:
+        a, b = robot.random_q(rng), robot.random_q(rng)
+        if checker.is_valid(a) and checker.is_valid(b) and not checker.path_valid(np.array([a, b])):
+            out.append((a, b))
+    return out
+
+
+def _rate(ctl: Controller, window: float) -> float:
+    c0, t0 = ctl.stats.checks, time.monotonic()
+    time.sleep(window)
+    return (ctl.stats.checks - c0) / (time.monotonic() - t0)

@@ -1,0 +1,163 @@
+"""`replanner bench reaction`: a box dropped into the arm's path at a known time; how fast the arm reacts."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pybullet as pb
+
+from ..config import ReplannerConfig, parse_config
+from ..controller import Goal, GoalStatus, State
+from ..geometry import Box
+from ..sim.kinematic import KinematicSim
+from ..transforms import make_transform
+from .scenes import TABLE_SIZE
+from .stats import summary
+
+A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
+B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
+
+
+def _small_cameras(cfg: ReplannerConfig, width: int, height: int) -> ReplannerConfig:
+    """The first camera only, rendered at width x height (in-process rendering holds the GIL)."""
+    data = cfg.model_dump(mode="python")
+    sensor = data["perception"]["sensors"][0]
+    sensor.update(width=width, height=height, max_points=None)
+    data["perception"]["sensors"] = [sensor]
+    return parse_config(data)
+
+
+def run(
+    cfg: ReplannerConfig,
+    *,
+    seed: int = 0,
+    runs: int = 20,
+    velocity_scale: float = 0.4,
+    camera_rate: float = 15.0,
+    time_to_contact=(0.7, 1.3),
+    progress=None,
+) -> dict:
+    """Each run drops a box where the arm will be `time_to_contact` [s] later (seeded), and measures."""
+    cfg = _small_cameras(cfg, 320, 240)
+    rng = np.random.default_rng(seed)
+    table = ("table", Box(TABLE_SIZE), make_transform((0.3, 0.0, -TABLE_SIZE[2] / 2)))
+    sim = KinematicSim(cfg, [table], camera_rate=camera_rate, seed=seed).start()
+    ctl = sim.controller
+    rows = []
+    try:
+        for k in range(runs):
+            home = ctl.submit(Goal(f"to-start-{k}", joints=A))
+            if home.wait(20) is None or home.result.status != GoalStatus.SUCCEEDED:
+                raise RuntimeError(f"could not return to the start: {home.result}")
+            size = rng.uniform(0.08, 0.16)
+            delay = rng.uniform(0.2, 0.4)
+            ahead = rng.uniform(*time_to_contact)  # [s] of travel between the arm and where the box lands
+            seen = {}
+
+            lo, hi = np.zeros(3), np.zeros(3)
+
+            def hook(now, lo=lo, hi=hi, seen=seen):
+                occ = sim.world.occupancy
+                if "map" not in seen and "drop" in seen and occ is not None and len(occ):
+                    if np.all((occ.centers >= lo) & (occ.centers <= hi), axis=1).sum() >= 3:
+                        seen["map"] = now
+
+            sim.frame_hooks.append(hook)
+            n_before = len(ctl.transitions)
+            log_before = len(ctl.events_log)
+            h = ctl.submit(Goal(f"across-{k}", joints=B, velocity_scale=velocity_scale))
+            t_end = time.monotonic() + 5
+            while ctl.state != State.MONITORING.value and time.monotonic() < t_end:
+                time.sleep(0.002)
+            time.sleep(delay)
+            now = time.monotonic()
+            start, traj = sim.driver.timeline.active(now)
+            q_then = traj.state_at(min(now - start + ahead, traj.duration))[0]
+            center = sim.robot.link_pose(q_then, "panda_hand")[:3, 3] + rng.uniform(-0.03, 0.03, 3)
+            lo[:], hi[:] = center - size / 2 - 0.011, center + size / 2 + 0.011
+            seen["drop"] = time.monotonic()
+            sim.add_obstacle("intruder", Box((size, size, size)), make_transform(center))
+            res = h.wait(30)
+            sim.frame_hooks.remove(hook)
+            trans = ctl.transitions[n_before:]
+            log = ctl.events_log[log_before:]
+            t_drop = seen["drop"]
+            pending = next((t.stamp for t in trans if t.dest == State.PENDING.value and t.stamp >= t_drop), None)
+            spliced = next((t.stamp for t in trans if t.trigger == "spliced" and pending and t.stamp >= pending), None)
+            landed = next(
+                (e[2]["land"] for e in log if e[1] == "plan_sent" and e[2]["spliced"] and pending and e[0] >= pending),
+                None,
+            )
+            braked = any(e[1] == "brake" and e[0] >= t_drop for e in log)
+            clearance = _min_distance(sim, t_drop, time.monotonic())
+            rows.append(
+                {
+                    "run": k,
+                    "status": res.status.value if res else "timeout",
+                    "drop_to_map_ms": _ms(seen.get("map"), t_drop),
+                    "map_to_pending_ms": _ms(pending, seen.get("map")),
+                    "pending_to_spliced_ms": _ms(spliced, pending),
+                    "pending_to_landed_ms": _ms(landed, pending),
+                    "replanned_without_stopping": bool(spliced)
+                    and not braked
+                    and res is not None
+                    and res.status == GoalStatus.SUCCEEDED,
+                    "braked": braked,
+                    "min_clearance_m": clearance,
+                    "time_to_contact_s": ahead,
+                    "path": [(round(t.stamp - t_drop, 3), t.dest, t.reason) for t in trans],
+                    "plan_errors": [e[2]["error"] for e in log if e[1] == "plan_error"],
+                }
+            )
+            sim.remove_obstacle("intruder")
+            time.sleep(0.3)
+            sim.perception.clear()  # a fresh map for each run: voxels the arm itself hides would linger
+            if progress:
+                progress(k, runs)
+    finally:
+        sim.stop()
+    return _summary(rows, seed, runs, velocity_scale, camera_rate, time_to_contact)
+
+
+def _ms(a, b):
+    return None if a is None or b is None else (a - b) * 1e3
+
+
+def _min_distance(sim: KinematicSim, t0: float, t1: float) -> float:
+    """Ground truth from pybullet: the smallest distance between the robot and the box over the run."""
+    body = sim.scene.objects.get("intruder")
+    best = np.inf
+    for t in np.arange(t0, t1, 0.01):
+        q, _ = sim.driver.timeline.state(t)
+        with sim._pb_lock:
+            sim.scene.set_q(q)
+            pts = pb.getClosestPoints(sim.scene.body, body, 0.5, physicsClientId=sim.scene.client)
+        if pts:
+            best = min(best, min(p[8] for p in pts))
+    return float(best)
+
+
+def _summary(rows, seed, runs, velocity_scale, camera_rate, time_to_contact) -> dict:
+    def col(name):
+        return [r[name] for r in rows if r[name] is not None]
+
+    return {
+        "bench": "reaction",
+        "seed": seed,
+        "runs": runs,
+        "velocity_scale": velocity_scale,
+        "time_to_contact_s": list(time_to_contact),
+        "camera": {"width": 320, "height": 240, "rate_hz": camera_rate},
+        "between_runs": "the box is removed and the map cleared",
+        "drop_to_map_ms": summary(col("drop_to_map_ms")),
+        "map_to_pending_ms": summary(col("map_to_pending_ms")),
+        "pending_to_spliced_ms": summary(col("pending_to_spliced_ms")),
+        "pending_to_landed_ms": summary(col("pending_to_landed_ms")),
+        "replanned_without_stopping": sum(r["replanned_without_stopping"] for r in rows),
+        "braked": sum(r["braked"] for r in rows),
+        "succeeded": sum(r["status"] == "succeeded" for r in rows),
+        "min_clearance_m": float(min(r["min_clearance_m"] for r in rows)),
+        "bar_pending_to_spliced_ms_median": 200.0,
+        "rows": rows,
+    }

@@ -1,0 +1,121 @@
+"""Robot drivers. `KinematicDriver` follows trajectories exactly (like ros2_control's mock hardware)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .trajectory import Trajectory
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class JointState:
+    """Measured joint positions [rad] and velocities [rad/s] at `stamp` [s, the controller's clock]."""
+
+    stamp: float
+    position: np.ndarray
+    velocity: np.ndarray
+
+
+class Timeline:
+    """Trajectories, each from an absolute start time; a later one replaces what remains of the earlier ones."""
+
+    def __init__(self, q0: np.ndarray):
+        self._segments: list[tuple[float, Trajectory]] = []
+        self._rest = np.asarray(q0, dtype=float).copy()
+        self._lock = threading.Lock()
+
+    def add(self, traj: Trajectory, start: float) -> None:
+        with self._lock:
+            self._segments = [(t, tr) for t, tr in self._segments if t < start]
+            self._segments.append((float(start), traj))
+
+    def active(self, t: float) -> tuple[float, Trajectory] | None:
+        """(start, trajectory) running at time t, or None before the first one."""
+        with self._lock:
+            seg = None
+            for start, traj in self._segments:
+                if start <= t:
+                    seg = (start, traj)
+            return seg
+
+    def state(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        seg = self.active(t)
+        if seg is None:
+            return self._rest.copy(), np.zeros_like(self._rest)
+        q, qd, _ = seg[1].state_at(t - seg[0])
+        return q, qd
+
+
+class KinematicDriver:
+    """Follows the trajectories it is sent exactly and reports joint states at `rate_hz`.
+
+    Args:
+        q0: initial configuration [rad].
+        rate_hz: joint-state rate.
+        on_state: called with each JointState (from the driver's thread; must not block).
+        clock: time source [s], shared with the controller.
+    """
+
+    def __init__(
+        self,
+        q0,
+        rate_hz: float = 200.0,
+        on_state: Callable[[JointState], None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.timeline = Timeline(q0)
+        self.rate_hz = float(rate_hz)
+        self.clock = clock
+        self._subscribers: list[Callable[[JointState], None]] = [on_state] if on_state else []
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.silent = False  # tests stop the stream to exercise the controller's watchdog
+
+    def subscribe(self, callback: Callable[[JointState], None]) -> None:
+        self._subscribers.append(callback)
+
+    def execute(self, traj: Trajectory, start_time: float) -> None:
+        """Run `traj` from `start_time` [clock s] on, replacing whatever would run from then."""
+        self.timeline.add(traj, start_time)
+
+    def state(self, t: float | None = None) -> JointState:
+        t = self.clock() if t is None else t
+        q, qd = self.timeline.state(t)
+        return JointState(t, q, qd)
+
+    def start(self) -> KinematicDriver:
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="kinematic-driver", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+
+    def _run(self) -> None:
+        period = 1.0 / self.rate_hz
+        next_t = self.clock()
+        while not self._stop.is_set():
+            if not self.silent:
+                js = self.state()
+                for cb in list(self._subscribers):
+                    try:
+                        cb(js)
+                    except Exception:  # a subscriber's bug must not stop the robot's state stream
+                        log.exception("joint-state subscriber failed")
+            next_t += period
+            delay = next_t - self.clock()
+            if delay > 0:
+                self._stop.wait(delay)
+            else:
+                next_t = self.clock()  # fell behind: do not burst

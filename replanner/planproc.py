@@ -1,0 +1,192 @@
+"""Planning in a child process: with the GIL, a planner thread and the monitor would share one core.
+
+The child builds the same robot, checker, planner and trajectory generator from the config. Each job carries
+the world as it is (static objects, attachments, and the occupancy voxels when they changed); the answer is
+the finished trajectory (timed, or spliced onto the motion in progress) or the planning error.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ReplannerError
+from .planning import GoalInvalid, NoSolution, PlanningCanceled, PlanningError, PlanResult, StartInvalid
+from .trajectory import Trajectory, TrajectoryError
+
+log = logging.getLogger(__name__)
+
+_ERRORS = {
+    c.__name__: c
+    for c in (GoalInvalid, NoSolution, PlanningCanceled, PlanningError, StartInvalid, TrajectoryError, ReplannerError)
+}
+
+
+@dataclass
+class _Request:
+    static: tuple  # ((name, shape, pose), ...), or None when unchanged
+    attachments: tuple  # ((name, shape, link, T_link_object, touch_links), ...), or None when unchanged
+    occupancy: tuple | None  # (keys int32 (N, 3), resolution, stamp), None: unchanged, () : no map
+    start: np.ndarray
+    goal: np.ndarray
+    planner: str | None
+    deadline: float
+    velocity_scale: float
+    acceleration_scale: float
+    base: tuple[Trajectory, float] | None  # (trajectory, t0): splice onto its state at t0
+
+
+def _serve(cfg_data: dict, conn, cancel, seed) -> None:
+    """The child's loop (a process entry point: imports happen here)."""
+    from .collision import CollisionChecker
+    from .config import parse_config
+    from .occupancy import OccupancyMap
+    from .planning import Planner
+    from .robot import RobotModel
+    from .trajectory import TrajectoryGenerator
+    from .world import World
+
+    cfg = parse_config(cfg_data)
+    robot = RobotModel.from_config(cfg.robot)
+    robot.self_clearance_tables()
+    world = World(robot)
+    checker = CollisionChecker.from_config(robot, world, cfg.collision)
+    planner = Planner.from_config(checker, cfg.planning, seed=seed)
+    gen = TrajectoryGenerator(robot, checker, tube_radius=cfg.planning.tube_radius)
+    conn.send(("ready", None))
+    while True:
+        try:
+            req = conn.recv()
+        except (EOFError, OSError):
+            return
+        if req is None:
+            return
+        try:
+            if req.static is not None or req.attachments is not None:
+                for name in world.names():  # not world.clear(): that would drop the occupancy map too
+                    world.remove(name)
+                for name, shape, pose in req.static or ():
+                    world.add(name, shape, pose)
+                for name, shape, link, T, touch in req.attachments or ():
+                    world.attach_new(name, shape, link, T, touch)
+            if req.occupancy is not None:
+                if req.occupancy == ():
+                    world.set_occupancy(None)
+                else:
+                    keys, res, stamp = req.occupancy
+                    world.set_occupancy(
+                        OccupancyMap(
+                            keys.astype(np.int64),
+                            res,
+                            stamp=stamp,
+                            broadphase_cell=cfg.collision.broadphase_cell,
+                            trusted=True,
+                        )
+                    )
+            res = planner.plan(req.start, req.goal, planner=req.planner, deadline=req.deadline, cancel=cancel)
+            if req.base is not None:
+                traj = gen.splice(req.base[0], req.base[1], res.path, req.velocity_scale, req.acceleration_scale)
+            else:
+                traj = gen.time(res.path, req.velocity_scale, req.acceleration_scale)
+            conn.send(("ok", (traj, res)))
+        except ReplannerError as err:
+            conn.send(("error", (type(err).__name__, str(err))))
+        except Exception:  # the parent must always get an answer
+            conn.send(("error", ("ReplannerError", traceback.format_exc())))
+
+
+class PlanningProcess:
+    """A planner in its own process. `plan` blocks the calling thread (not the GIL) until the answer comes.
+
+    Args:
+        cfg: the full config (robot, collision, planning sections are used).
+        seed: OMPL seed in the child.
+    """
+
+    def __init__(self, cfg, seed: int | None = None, start_timeout: float = 60.0):
+        ctx = mp.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._cancel = ctx.Event()
+        self._lock = threading.Lock()
+        self._proc = ctx.Process(
+            target=_serve,
+            args=(cfg.model_dump(mode="python"), child, self._cancel, seed),
+            name="replanner-planner",
+            daemon=True,
+        )
+        self._proc.start()
+        if not self._conn.poll(start_timeout):
+            self.close()
+            raise ReplannerError(f"the planning process did not start within {start_timeout} s")
+        self._conn.recv()
+        self._sent_version: int | None = None
+        self._sent_map: object | None = None
+
+    def cancel(self) -> None:
+        """Stop the running plan (it answers PlanningCanceled)."""
+        self._cancel.set()
+
+    def plan(
+        self,
+        snapshot,
+        start,
+        goal,
+        *,
+        planner=None,
+        deadline=1.0,
+        velocity_scale=1.0,
+        acceleration_scale=1.0,
+        base=None,
+    ) -> tuple[Trajectory, PlanResult]:
+        with self._lock:
+            self._cancel.clear()
+            static = attachments = None
+            if snapshot.version != self._sent_version:
+                static = tuple((o.name, o.shape, o.pose) for o in snapshot.objects.values())
+                attachments = tuple(
+                    (a.name, a.shape, a.link, a.T_link_object, a.touch_links) for a in snapshot.attachments.values()
+                )
+            occ = snapshot.occupancy
+            occupancy = None
+            if occ is not self._sent_map:
+                occupancy = (
+                    () if occ is None or not len(occ) else (occ.keys.astype(np.int32), occ.resolution, occ.stamp)
+                )
+            req = _Request(
+                static,
+                attachments,
+                occupancy,
+                np.asarray(start, float),
+                np.asarray(goal, float),
+                planner,
+                float(deadline),
+                velocity_scale,
+                acceleration_scale,
+                base,
+            )
+            t0 = time.perf_counter()
+            self._conn.send(req)
+            self._sent_version, self._sent_map = snapshot.version, occ
+            if not self._conn.poll(deadline + 30.0):
+                raise PlanningError("the planning process did not answer")
+            kind, data = self._conn.recv()
+            log.debug("planning process answered in %.1f ms", (time.perf_counter() - t0) * 1e3)
+        if kind == "ok":
+            return data
+        name, message = data
+        raise _ERRORS.get(name, ReplannerError)(message)
+
+    def close(self) -> None:
+        try:
+            self._conn.send(None)
+        except (OSError, BrokenPipeError):
+            pass
+        self._proc.join(timeout=2.0)
+        if self._proc.is_alive():
+            self._proc.terminate()

@@ -1,0 +1,164 @@
+"""The controller on a kinematic robot, with cameras rendered by pybullet: try it without a physics simulator.
+
+Everything runs in one process: the kinematic driver thread, a camera thread (pybullet renders, the
+perception pipeline integrates, the controller hears of the new map) and the controller thread.
+Obstacles added here exist only in pybullet: the controller learns of them through the cameras.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import numpy as np
+
+from ..collision import CollisionChecker
+from ..config import ReplannerConfig
+from ..controller import Controller
+from ..driver import KinematicDriver
+from ..geometry import Shape
+from ..perception import CameraModel, CloudFrame, CloudRejected, Perception, pose_from_config
+from ..planning import Planner
+from ..robot import RobotModel
+from ..trajectory import TrajectoryGenerator
+from ..world import World
+from .camera import PyBulletDepthCamera
+from .scene import PyBulletScene
+
+log = logging.getLogger(__name__)
+
+
+class KinematicSim:
+    """Robot, world, perception, controller and simulated cameras wired together.
+
+    Args:
+        cfg: full config (robot, collision, perception with sensors, planning, controller).
+        static: (name, shape, pose) objects known to the world and present in the simulation.
+        camera_rate: frames per second per camera (rendering holds the GIL: keep images small in-process).
+    """
+
+    def __init__(
+        self,
+        cfg: ReplannerConfig,
+        static=(),
+        *,
+        robot: RobotModel | None = None,
+        camera_rate: float = 10.0,
+        seed: int | None = None,
+    ):
+        self.cfg = cfg
+        self.robot = robot or RobotModel.from_config(cfg.robot)
+        self.world = World(self.robot)
+        for name, shape, pose in static:
+            self.world.add(name, shape, pose)
+        self.checker = CollisionChecker.from_config(self.robot, self.world, cfg.collision)
+        self.planner = Planner.from_config(self.checker, cfg.planning, seed=seed)
+        self.gen = TrajectoryGenerator(self.robot, self.checker, tube_radius=cfg.planning.tube_radius)
+        self.driver = KinematicDriver(self.robot.home, rate_hz=cfg.controller.driver_rate_hz)
+        sensors = []
+        self.perception = None
+        if cfg.perception is not None and cfg.perception.sensors:
+            self.perception = Perception(
+                cfg.perception, self.robot, self.world, broadphase_cell=cfg.collision.broadphase_cell
+            )
+            sensors = [s.name for s in cfg.perception.sensors]
+        self.process = None
+        if cfg.controller.planning_process:
+            from ..planproc import PlanningProcess
+
+            self.process = PlanningProcess(cfg, seed=seed)
+        self.controller = Controller(
+            self.robot,
+            self.checker,
+            self.planner,
+            self.gen,
+            self.driver.execute,
+            cfg.controller,
+            sensors=sensors,
+            default_deadline=cfg.planning.deadline,
+            planning_process=self.process,
+        )
+        self.driver.subscribe(self.controller.on_joint_state)
+        if self.perception is not None:
+            self.driver.subscribe(lambda js: self.perception.add_joint_state(js.stamp, js.position))
+        self._pb_lock = threading.Lock()
+        self.scene = PyBulletScene(self.robot)
+        for name, shape, pose in static:
+            self.scene.add(name, shape, pose)
+        self.cameras = []
+        if self.perception is not None:
+            for s in cfg.perception.sensors:
+                cam = PyBulletDepthCamera(self.scene.client, CameraModel.from_config(s), pose_from_config(s.pose))
+                self.cameras.append((s.name, cam))
+        self.camera_rate = camera_rate
+        self.cameras_on = True
+        self.map_updates: list[tuple[float, int]] = []  # (time, occupied voxels)
+        self.frame_hooks: list = []  # called with the time after each integrated frame (benches measure here)
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+
+    # ------------------------------------------------------------------ obstacles only the cameras see
+    def add_obstacle(self, name: str, shape: Shape, pose: np.ndarray) -> None:
+        with self._pb_lock:
+            self.scene.add(name, shape, pose)
+
+    def move_obstacle(self, name: str, pose: np.ndarray) -> None:
+        with self._pb_lock:
+            self.scene.move(name, pose)
+
+    def remove_obstacle(self, name: str) -> None:
+        with self._pb_lock:
+            self.scene.remove(name)
+
+    # ------------------------------------------------------------------ running
+    def start(self) -> KinematicSim:
+        self.driver.start()
+        self.controller.start()
+        if self.cameras:
+            t = threading.Thread(target=self._camera_loop, name="cameras", daemon=True)
+            t.start()
+            self._threads.append(t)
+        deadline = time.monotonic() + 5.0
+        while self.cameras and not self.map_updates and time.monotonic() < deadline:
+            time.sleep(0.01)
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=3.0)
+        self.controller.stop()
+        self.driver.stop()
+        if self.process is not None:
+            self.process.close()
+        with self._pb_lock:
+            self.scene.close()
+
+    def _camera_loop(self) -> None:
+        period = 1.0 / self.camera_rate
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            if self.cameras_on:
+                for name, cam in self.cameras:
+                    js = self.driver.state()
+                    with self._pb_lock:
+                        self.scene.set_q(js.position)
+                        cloud = cam.cloud()
+                    try:
+                        self.perception.integrate(CloudFrame(name, js.stamp, cloud, organized=True))
+                    except CloudRejected as err:
+                        log.warning("cloud rejected: %s", err)
+                        continue
+                    self.controller.on_cloud(name, js.stamp)
+                    self.controller.on_map_update(js.stamp)
+                    now = time.monotonic()
+                    self.map_updates.append((now, len(self.world.occupancy)))
+                    for hook in list(self.frame_hooks):
+                        hook(now)
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay > 0:
+                self._stop.wait(delay)
+            else:
+                next_t = time.monotonic()

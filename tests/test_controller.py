@@ -1,0 +1,278 @@
+"""Every edge of the controller's state machine, on the kinematic driver with clouds through perception."""
+
+from __future__ import annotations
+
+import copy
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+from replanner.config import parse_config
+from replanner.controller import Goal, GoalRejected, GoalStatus, State
+from replanner.errors import UnknownNameError
+from replanner.geometry import Box
+from replanner.planning import PoseGoal
+from replanner.sim.kinematic import KinematicSim
+from replanner.trajectory import progress_along
+from replanner.transforms import make_transform
+
+from .conftest import CONFIGS
+from .helpers import ARM_FORWARD, ARM_UP, sleeve
+
+A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
+B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
+SLOW = 0.35  # velocity scale: ~2.5 s from A to B, time for the cameras to see things
+# a plate through the goal's hand, facing the front camera: cameras map surfaces, so the hand must cross one
+PLATE = Box((0.02, 0.3, 0.3))
+TABLE = ("table", Box((1.6, 1.4, 0.05)), make_transform((0.3, 0.0, -0.025)))
+
+
+def sim_config(**controller) -> dict:
+    data = yaml.safe_load((CONFIGS / "panda.yaml").read_text())
+    front = data["perception"]["sensors"][0]
+    front.update(width=320, height=240)
+    data["perception"]["sensors"] = [front]
+    data["controller"] = {**data.get("controller", {}), **controller}
+    return data
+
+
+@pytest.fixture
+def make_sim(panda):
+    sims = []
+
+    def make(**controller) -> KinematicSim:
+        cfg = parse_config(copy.deepcopy(sim_config(**controller)), base_dir=CONFIGS)
+        sim = KinematicSim(cfg, [TABLE], robot=panda, seed=3).start()
+        sims.append(sim)
+        return sim
+
+    yield make
+    for s in sims:
+        s.stop()
+
+
+def go_to(sim: KinematicSim, q, goal_id: str, timeout: float = 15.0, **kw):
+    h = sim.controller.submit(Goal(goal_id, joints=q, **kw))
+    res = h.wait(timeout)
+    assert res is not None, f"no result for {goal_id} in {timeout} s; transitions: {edges(sim)}"
+    return res
+
+
+def edges(sim) -> list[tuple[str, str, str]]:
+    return [(t.source, t.dest, t.trigger) for t in sim.controller.transitions]
+
+
+def wait_for(predicate, timeout: float, what: str):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return
+        time.sleep(0.005)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def wait_state(sim, state: State, timeout: float = 5.0):
+    wait_for(lambda: sim.controller.state == state.value, timeout, state.value)
+
+
+def hand_at(sim, q) -> np.ndarray:
+    return sim.robot.link_pose(q, "panda_hand")[:3, 3]
+
+
+def test_plan_ok_reaches_the_goal(make_sim):
+    sim = make_sim()
+    res = go_to(sim, A, "a")
+    assert res.status == GoalStatus.SUCCEEDED
+    assert np.abs(sim.driver.state().position - A).max() < 0.01
+    assert edges(sim) == [
+        ("WAITING", "PLANNING", "plan"),
+        ("PLANNING", "MONITORING", "start_motion"),
+        ("MONITORING", "WAITING", "succeeded"),
+    ]
+    assert all(t.reason for t in sim.controller.transitions)
+
+
+def test_plan_fails_retries_and_gives_up(make_sim):
+    sim = make_sim()
+    assert go_to(sim, ARM_UP, "up").status == GoalStatus.SUCCEEDED
+    for name, shape, pose in sleeve(sim.robot):  # a sleeve the arm cannot bend out of (the world knows it)
+        sim.world.add(name, shape, pose)
+    h = sim.controller.submit(Goal("out", joints=ARM_FORWARD, deadline=0.4))
+    res = h.wait(10)
+    assert res.status == GoalStatus.FAILED and "planning failed" in res.reason, res
+    attempts = int(res.reason.split("(")[1].split()[0])
+    assert attempts >= 2  # retried with fresh trees until the deadline
+    assert edges(sim)[-2:] == [("WAITING", "PLANNING", "plan"), ("PLANNING", "WAITING", "plan_failed")]
+
+
+def _drop_on_path(sim, after: float, size=0.14, where: float = 0.5):
+    mid = A + where * (B - A)
+    c = hand_at(sim, mid)
+    time.sleep(after)
+    sim.add_obstacle("intruder", Box((size, size, size)), make_transform(c))
+    return c
+
+
+def test_block_then_replan_spliced_while_moving(make_sim):
+    sim = make_sim()
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    wait_state(sim, State.MONITORING)
+    t_start = time.monotonic()
+    _drop_on_path(sim, after=0.3, where=0.7)  # far enough ahead that a new path can land before it
+    res = h.wait(20)
+    assert res.status == GoalStatus.SUCCEEDED, (res, edges(sim))
+    e = edges(sim)
+    assert ("MONITORING", "MONITORING_WITH_PLANNING_PENDING", "blocked") in e
+    assert ("MONITORING_WITH_PLANNING_PENDING", "MONITORING", "spliced") in e
+    assert not any(t[1] == "HOLDING" or t[2] == "brake_and_abort" for t in e)  # no stop on the way
+    _check_executed_motion(sim, t_start)
+
+
+def _check_executed_motion(sim, t_start: float):
+    """What the driver actually ran, at 1 kHz: continuous, within limits, never backwards at a splice."""
+    dt = 1e-3
+    t = np.arange(t_start, time.monotonic(), dt)
+    q = np.array([sim.driver.timeline.state(tt)[0] for tt in t])
+    lim = sim.robot.limits
+    v = np.diff(q, axis=0) / dt
+    a = np.diff(v, axis=0) / dt
+    j = np.diff(a, axis=0) / dt
+    scale = SLOW
+    assert (np.abs(v) / (lim.velocity * scale)).max() <= 1.001
+    assert (np.abs(a) / lim.acceleration).max() <= 1.001
+    assert (np.abs(j) / lim.jerk).max() <= 1.001
+    segs = sim.driver.timeline._segments
+    for start, traj in segs[1:]:
+        if start <= t_start or traj.duration == 0:
+            continue
+        ts = np.arange(0, traj.duration, dt)
+        qs = traj.evaluate(ts, order=0)[0]
+        prog = progress_along(qs, traj.curve.polyline)
+        assert np.diff(prog).min() >= -1e-6
+
+
+def test_block_then_path_clears_cancels_the_replan(make_sim):
+    sim = make_sim(pending_timeout=5.0)
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    # a box on the goal: every replan fails (goal in collision) while it is there
+    goal_hand = hand_at(sim, B)
+    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW * 0.6))
+    wait_state(sim, State.MONITORING)
+    sim.add_obstacle("on_goal", PLATE, make_transform(goal_hand))
+    wait_state(sim, State.PENDING, timeout=3.0)
+    sim.remove_obstacle("on_goal")
+    wait_state(sim, State.MONITORING, timeout=3.0)
+    assert edges(sim)[-1] == ("MONITORING_WITH_PLANNING_PENDING", "MONITORING", "path_clear")
+    assert any(e[1] == "replan_canceled" for e in sim.controller.events_log)
+    assert h.wait(20).status == GoalStatus.SUCCEEDED
+
+
+def test_safety_distance_brakes_and_aborts(make_sim):
+    sim = make_sim(policy="abort", pending_timeout=10.0)
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    goal_hand = hand_at(sim, B)
+    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    wait_state(sim, State.MONITORING)
+    sim.add_obstacle("on_goal", PLATE, make_transform(goal_hand))
+    res = h.wait(20)
+    assert res.status == GoalStatus.FAILED, res
+    assert edges(sim)[-1][1:] == ("WAITING", "brake_and_abort")
+    wait_for(lambda: np.abs(sim.driver.state().velocity).max() < 1e-9, 3.0, "the arm at rest")
+    q = sim.driver.state().position
+    assert sim.checker.is_valid(q)  # stopped before touching anything the map holds
+    assert any(e[1] == "brake" for e in sim.controller.events_log)
+
+
+def test_brake_then_wait_and_resume_after_the_obstacle_leaves(make_sim):
+    sim = make_sim(policy="wait_and_resume", pending_timeout=10.0, hold_timeout=20.0, hold_replan_interval=30.0)
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    goal_hand = hand_at(sim, B)
+    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    wait_state(sim, State.MONITORING)
+    sim.add_obstacle("on_goal", PLATE, make_transform(goal_hand))
+    wait_state(sim, State.HOLDING, timeout=10.0)
+    time.sleep(0.5)
+    assert sim.controller.state == State.HOLDING.value  # still blocked: still holding
+    sim.remove_obstacle("on_goal")
+    res = h.wait(20)
+    assert res.status == GoalStatus.SUCCEEDED, (res, edges(sim))
+    assert ("HOLDING", "MONITORING", "resume") in edges(sim)
+
+
+def test_cancel_brakes_and_reports(make_sim):
+    sim = make_sim()
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    wait_state(sim, State.MONITORING)
+    time.sleep(0.5)
+    sim.controller.cancel("across")
+    res = h.wait(5)
+    assert res.status == GoalStatus.CANCELED
+    wait_for(lambda: np.abs(sim.driver.state().velocity).max() < 1e-9, 3.0, "the arm at rest")
+    assert np.abs(sim.driver.state().position - B).max() > 0.3  # stopped on the way, not at the goal
+    with pytest.raises(UnknownNameError, match="active goal"):
+        sim.controller.cancel("across")
+
+
+def test_new_goal_preempts_the_current_one(make_sim):
+    sim = make_sim()
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    first = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    wait_state(sim, State.MONITORING)
+    time.sleep(0.4)
+    second = sim.controller.submit(Goal("home", joints=sim.robot.home))
+    assert first.wait(5).status == GoalStatus.PREEMPTED
+    assert second.wait(15).status == GoalStatus.SUCCEEDED
+    assert np.abs(sim.driver.state().position - sim.robot.home).max() < 0.01
+
+
+def test_joint_state_silence_brakes_and_fails(make_sim):
+    sim = make_sim()
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    wait_state(sim, State.MONITORING)
+    sim.driver.silent = True
+    res = h.wait(5)
+    assert res.status == GoalStatus.FAILED and "joint states silent" in res.reason
+    assert edges(sim)[-1][2] == "fault"
+    sim.driver.silent = False
+
+
+def test_camera_silence_brakes_and_fails(make_sim):
+    sim = make_sim(sensor_timeout=0.5)
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW * 0.5))
+    wait_state(sim, State.MONITORING)
+    sim.cameras_on = False
+    res = h.wait(5)
+    assert res.status == GoalStatus.FAILED and "camera 'front' silent" in res.reason
+    with pytest.raises(GoalRejected, match="camera 'front' is silent"):
+        sim.controller.submit(Goal("again", joints=A))
+
+
+@pytest.mark.parametrize(
+    "goal,match",
+    [
+        (Goal("g", joints=A[:6]), "7 values"),
+        (Goal("g", joints=np.r_[np.nan, A[1:]]), "NaN"),
+        (Goal("g", joints=np.r_[A[:3], 0.4, A[4:]]), "panda_joint4 = 0.4000 is outside"),
+        (Goal("g", joints=np.array([0.0, 1.7, 0.0, -0.3, 0.0, 2.0, 0.8])), "panda_hand collides with object 'table'"),
+        (Goal("g", joints=A, planner="Teleport"), "unknown planner 'Teleport'"),
+        (Goal("g", pose=PoseGoal("panda_grasptarget", (2.5, 0.0, 0.5), (1, 0, 0, 0))), "beyond"),
+        (Goal("g", joints=A, pose=PoseGoal("panda_hand", (0.5, 0, 0.5), (1, 0, 0, 0))), "exactly one"),
+        (Goal("g", joints=A, deadline=-1.0), "deadline"),
+        (Goal("g", joints=A, velocity_scale=2.0), "velocity_scale"),
+        (Goal("", joints=A), "goal id"),
+    ],
+)
+def test_bad_goals_are_rejected_and_change_nothing(make_sim, goal, match):
+    sim = make_sim()
+    before = (sim.controller.state, len(sim.controller.transitions), sim.driver.state().position.copy())
+    with pytest.raises(GoalRejected, match=match):
+        sim.controller.submit(goal)
+    time.sleep(0.05)
+    assert (sim.controller.state, len(sim.controller.transitions)) == before[:2]
+    np.testing.assert_allclose(sim.driver.state().position, before[2])
