@@ -329,6 +329,7 @@ class Controller:
     # ------------------------------------------------------------------ thread
     def start(self) -> Controller:
         self._stop.clear()
+        self.stats.last_check = self.clock()
         self._thread = threading.Thread(target=self._run, name="controller", daemon=True)
         self._thread.start()
         return self
@@ -359,8 +360,8 @@ class Controller:
                 now = self.clock()
                 if (self._js_dirty or self._map_dirty) and now - self.stats.last_check >= period:
                     self._js_dirty = self._map_dirty = False
-                    # recent gap between checks, decaying: how late the next one may be
-                    self._check_gap = max(now - self.stats.last_check, 0.9 * self._check_gap)
+                    # recent gap between checks, decaying: how late the next one may be (capped: a stall is a fault)
+                    self._check_gap = min(max(now - self.stats.last_check, 0.9 * self._check_gap), 0.25)
                     self.stats.last_check = now
                     self._check(now)
                 self._watchdogs(self.clock())
@@ -706,8 +707,9 @@ class Controller:
                 self.last_clearance = c.distance
                 self._safety_brake(f"{c.body} is {c.distance:.3f} m from {c.obstacle}, within the safety distance")
                 return
-            if not clear and self._stop_region_blocked(now):
-                self._safety_brake("braking now is the last chance to stop before the obstacle")
+            hit = self._stop_region_blocked(now) if not clear else None
+            if hit is not None:
+                self._safety_brake(f"braking now is the last chance to stop before the obstacle ({hit})")
                 return
             if now - self._pending_since > self.cfg.pending_timeout:
                 self._safety_brake(f"no new path within {self.cfg.pending_timeout} s")
@@ -736,11 +738,11 @@ class Controller:
                 self._hold_planned = now
                 self._launch(self._make_job("hold", self._handle.q_goal, self._deadline(self._handle.goal)))
 
-    def _stop_region_blocked(self, now: float) -> bool:
-        """Whether the stretch a brake decided at the next check would still travel is blocked."""
+    def _stop_region_blocked(self, now: float):
+        """The contact on the stretch a brake decided at the next check would still travel, or None."""
         seg = self._active(now)
         if seg is None:
-            return False
+            return None
         start, traj = seg
         # the next check may come later than the rate says (the GIL, a busy machine): use the gaps seen
         gap = max(2.0 / self.cfg.check_rate_hz, 2.0 * self._check_gap, 0.03)
@@ -749,9 +751,10 @@ class Controller:
         stop = self.gen.brake(traj, t)
         s_a, s_b = traj.s_at(now - start), stop.s_at(stop.duration)
         if s_b - s_a < 1e-6:
-            return False
+            return None
         pts = traj.curve.eval(np.linspace(s_a, s_b, max(2, int((s_b - s_a) / 0.02) + 2)))
-        return not self.checker.path_valid(pts)
+        result = self.checker.check_path(pts)
+        return None if result.valid else result.contact
 
     def _reached(self, now: float) -> bool:
         if self._moving(now) or any(t > now for t, _ in self._segments):

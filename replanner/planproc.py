@@ -7,12 +7,16 @@ the finished trajectory (timed, or spliced onto the motion in progress) or the p
 
 from __future__ import annotations
 
+import itertools
 import logging
-import multiprocessing as mp
+import socket
+import subprocess
+import sys
 import threading
 import time
 import traceback
 from dataclasses import dataclass
+from multiprocessing.connection import Connection
 
 import numpy as np
 
@@ -42,8 +46,8 @@ class _Request:
     base: tuple[Trajectory, float] | None  # (trajectory, t0): splice onto its state at t0
 
 
-def _serve(cfg_data: dict, conn, cancel, seed) -> None:
-    """The child's loop (a process entry point: imports happen here)."""
+def _serve(conn, cancel_conn) -> None:
+    """The child: `python -m replanner.planproc <request fd> <cancel fd>`."""
     from .collision import CollisionChecker
     from .config import parse_config
     from .occupancy import OccupancyMap
@@ -52,6 +56,7 @@ def _serve(cfg_data: dict, conn, cancel, seed) -> None:
     from .trajectory import TrajectoryGenerator
     from .world import World
 
+    cfg_data, seed = conn.recv()
     cfg = parse_config(cfg_data)
     robot = RobotModel.from_config(cfg.robot)
     robot.self_clearance_tables()
@@ -59,14 +64,30 @@ def _serve(cfg_data: dict, conn, cancel, seed) -> None:
     checker = CollisionChecker.from_config(robot, world, cfg.collision)
     planner = Planner.from_config(checker, cfg.planning, seed=seed)
     gen = TrajectoryGenerator(robot, checker, tube_radius=cfg.planning.tube_radius)
+    cancel = threading.Event()
+    current = [0]
+
+    def listen_for_cancels():
+        while True:
+            try:
+                job = cancel_conn.recv()
+            except (EOFError, OSError):
+                return
+            if job == current[0]:
+                cancel.set()
+
+    threading.Thread(target=listen_for_cancels, daemon=True).start()
     conn.send(("ready", None))
     while True:
         try:
-            req = conn.recv()
+            msg = conn.recv()
         except (EOFError, OSError):
             return
-        if req is None:
+        if msg is None:
             return
+        job, req = msg
+        current[0] = job
+        cancel.clear()
         try:
             if req.static is not None or req.attachments is not None:
                 for name in world.names():  # not world.clear(): that would drop the occupancy map too
@@ -104,23 +125,27 @@ def _serve(cfg_data: dict, conn, cancel, seed) -> None:
 class PlanningProcess:
     """A planner in its own process. `plan` blocks the calling thread (not the GIL) until the answer comes.
 
+    The child is `python -m replanner.planproc` (not multiprocessing's spawn, which would re-run the caller's
+    main script); requests and cancels travel over two inherited socket pairs.
+
     Args:
         cfg: the full config (robot, collision, planning sections are used).
         seed: OMPL seed in the child.
     """
 
     def __init__(self, cfg, seed: int | None = None, start_timeout: float = 60.0):
-        ctx = mp.get_context("spawn")
-        self._conn, child = ctx.Pipe()
-        self._cancel = ctx.Event()
+        req_parent, req_child = socket.socketpair()
+        cancel_parent, cancel_child = socket.socketpair()
+        fds = (req_child.fileno(), cancel_child.fileno())
+        self._proc = subprocess.Popen([sys.executable, "-m", "replanner.planproc", *map(str, fds)], pass_fds=fds)
+        req_child.close()
+        cancel_child.close()
+        self._conn = Connection(req_parent.detach())
+        self._cancel_conn = Connection(cancel_parent.detach())
         self._lock = threading.Lock()
-        self._proc = ctx.Process(
-            target=_serve,
-            args=(cfg.model_dump(mode="python"), child, self._cancel, seed),
-            name="replanner-planner",
-            daemon=True,
-        )
-        self._proc.start()
+        self._jobs = itertools.count(1)
+        self._job = 0
+        self._conn.send((cfg.model_dump(mode="python"), seed))
         if not self._conn.poll(start_timeout):
             self.close()
             raise ReplannerError(f"the planning process did not start within {start_timeout} s")
@@ -130,7 +155,10 @@ class PlanningProcess:
 
     def cancel(self) -> None:
         """Stop the running plan (it answers PlanningCanceled)."""
-        self._cancel.set()
+        try:
+            self._cancel_conn.send(self._job)
+        except OSError:
+            pass
 
     def plan(
         self,
@@ -145,7 +173,6 @@ class PlanningProcess:
         base=None,
     ) -> tuple[Trajectory, PlanResult]:
         with self._lock:
-            self._cancel.clear()
             static = attachments = None
             if snapshot.version != self._sent_version:
                 static = tuple((o.name, o.shape, o.pose) for o in snapshot.objects.values())
@@ -171,7 +198,8 @@ class PlanningProcess:
                 base,
             )
             t0 = time.perf_counter()
-            self._conn.send(req)
+            self._job = next(self._jobs)
+            self._conn.send((self._job, req))
             self._sent_version, self._sent_map = snapshot.version, occ
             if not self._conn.poll(deadline + 30.0):
                 raise PlanningError("the planning process did not answer")
@@ -185,8 +213,13 @@ class PlanningProcess:
     def close(self) -> None:
         try:
             self._conn.send(None)
-        except (OSError, BrokenPipeError):
+        except OSError:
             pass
-        self._proc.join(timeout=2.0)
-        if self._proc.is_alive():
+        try:
+            self._proc.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
             self._proc.terminate()
+
+
+if __name__ == "__main__":
+    _serve(Connection(int(sys.argv[1])), Connection(int(sys.argv[2])))

@@ -591,10 +591,12 @@ class TrajectoryGenerator:
     def brake(self, traj: Trajectory, t: float) -> Trajectory:
         """The shortest jerk-limited stop from the state at time t that stays on the trajectory's own curve."""
         s0, v0, a0, _ = (float(x[0]) for x in traj.law.eval(np.array([t])))
-        curve, lim = traj.curve, traj.limits
+        curve = traj.curve
+        # a stop only slows down: no velocity cap (the arm may still be above a just-lowered one)
+        lim = _Limits(traj.limits.velocity * 1e3, traj.limits.acceleration, traj.limits.jerk)
         end = float(traj.law.eval(np.array([traj.duration]))[0][0])
         if v0 <= 1e-9 and abs(a0) <= 1e-9:
-            return Trajectory(curve, _law_from([], 0.0, s0), lim, traj.joint_names)
+            return Trajectory(curve, _law_from([], 0.0, s0), traj.limits, traj.joint_names)
         # the closest stop point whose backward pass admits the current speed, then time it like any path;
         # speeding up, the arm still gains a^2 / 2j (at the weakest piece's jerk) before it can slow down
         j_min = min(_piece_bounds(p, lim)[2] for p in curve.pieces)
@@ -609,12 +611,14 @@ class TrajectoryGenerator:
             else:
                 lo = mid
         stop = hi
-        for _ in range(20):
+        for _ in range(60):
             try:
                 law = _time_law(curve, lim, s0, v0, a0, stop)
-                return Trajectory(curve, law, lim, traj.joint_names)
+                return Trajectory(curve, law, traj.limits, traj.joint_names)
             except TrajectoryError:
-                stop = min(end, stop + 0.05 * (end - s0) + 1e-4)
+                if stop >= end:
+                    break
+                stop = min(end, stop + 0.05 * (stop - s0) + 1e-4)  # a little farther: never a move elsewhere
         return self.retime_from(traj, t)
 
     def retime_from(self, traj: Trajectory, t: float) -> Trajectory:

@@ -165,7 +165,8 @@ def test_block_then_path_clears_cancels_the_replan(make_sim):
     wait_state(sim, State.PENDING, timeout=3.0)
     sim.remove_obstacle("on_goal")
     wait_state(sim, State.MONITORING, timeout=3.0)
-    assert edges(sim)[-1] == ("MONITORING_WITH_PLANNING_PENDING", "MONITORING", "path_clear")
+    why = [(t.dest, t.reason) for t in sim.controller.transitions]
+    assert edges(sim)[-1] == ("MONITORING_WITH_PLANNING_PENDING", "MONITORING", "path_clear"), why
     assert any(e[1] == "replan_canceled" for e in sim.controller.events_log)
     assert h.wait(20).status == GoalStatus.SUCCEEDED
 
