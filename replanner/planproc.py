@@ -35,7 +35,7 @@ _ERRORS = {
 @dataclass
 class _Request:
     static: tuple  # ((name, shape, pose), ...), or None when unchanged
-    attachments: tuple  # ((name, shape, link, T_link_object, touch_links), ...), or None when unchanged
+    attachments: tuple  # ((name, shape, link, T_link_object, touch_links, support), ...), or None when unchanged
     occupancy: tuple | None  # (keys int32 (N, 3), resolution, stamp), None: unchanged, () : no map
     start: np.ndarray
     goal: np.ndarray
@@ -94,8 +94,8 @@ def _serve(conn, cancel_conn) -> None:
                     world.remove(name)
                 for name, shape, pose in req.static or ():
                     world.add(name, shape, pose)
-                for name, shape, link, T, touch in req.attachments or ():
-                    world.attach_new(name, shape, link, T, touch)
+                for name, shape, link, T, touch, support in req.attachments or ():
+                    world.attach_new(name, shape, link, T, touch, support)
             if req.occupancy is not None:
                 if req.occupancy == ():
                     world.set_occupancy(None)
@@ -177,7 +177,8 @@ class PlanningProcess:
             if snapshot.version != self._sent_version:
                 static = tuple((o.name, o.shape, o.pose) for o in snapshot.objects.values())
                 attachments = tuple(
-                    (a.name, a.shape, a.link, a.T_link_object, a.touch_links) for a in snapshot.attachments.values()
+                    (a.name, a.shape, a.link, a.T_link_object, a.touch_links, a.support)
+                    for a in snapshot.attachments.values()
                 )
             occ = snapshot.occupancy
             occupancy = None

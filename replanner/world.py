@@ -31,13 +31,17 @@ class WorldObject:
 
 @dataclass(frozen=True, eq=False)
 class Attachment:
-    """An object carried by a robot link: T_link_object places it; `touch_links` may touch it (e.g. fingers)."""
+    """An object carried by a robot link: T_link_object places it; `touch_links` may touch it (e.g. fingers).
+
+    `support`: static objects it may touch until it has left them (the table it was picked from).
+    """
 
     name: str
     shape: Shape
     link: str
     T_link_object: np.ndarray
     touch_links: frozenset[str] = field(default_factory=frozenset)
+    support: frozenset[str] = field(default_factory=frozenset)
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,33 +140,85 @@ class World:
             else:
                 raise UnknownNameError("object", name, self.names())
 
-    def attach(self, name: str, link: str, q, touch_links: Iterable[str] | None = None) -> None:
+    def attach(
+        self, name: str, link: str, q, touch_links: Iterable[str] | None = None, support: Iterable[str] = ()
+    ) -> None:
         """Attach the static object `name` to `link`, keeping its pose relative to the link at configuration q.
 
         `touch_links` may touch the object without counting as a collision (default: the link itself and every
-        link rigidly fixed to it, e.g. the gripper fingers).
+        link rigidly fixed to it, e.g. the gripper fingers). `support`: static objects the object rests on; it
+        may touch them until `release_support` finds it clear of them (MoveIt's pick does the same).
         """
         with self._lock:
             obj = self._get_static(name)
             T_base_link = self.robot.link_pose(self.robot.check_q(q, "q"), link)
             T_link_object = invert_transform(T_base_link) @ obj.pose
             touch = self._touch_links(link, touch_links)
+            support = self._check_support(name, support)
             objects = dict(self._snap.objects)
             del objects[name]
             attachments = dict(self._snap.attachments)
-            attachments[name] = Attachment(name, obj.shape, link, _frozen(T_link_object, "T_link_object"), touch)
+            attachments[name] = Attachment(
+                name, obj.shape, link, _frozen(T_link_object, "T_link_object"), touch, support
+            )
             self._publish(objects=objects, attachments=attachments)
 
+    def release_support(self, q, clearance: float) -> list[tuple[str, str]]:
+        """Drop each support an attached object is now farther than `clearance` [m] from; returns (object, support)."""
+        import fcl
+
+        from .geometry import padded_geometry
+
+        s = self._snap
+        if not any(a.support for a in s.attachments.values()):
+            return []
+        q = self.robot.check_q(q, "q")
+        released = []
+        for a in s.attachments.values():
+            for sup in a.support:
+                obj = s.objects.get(sup)
+                if obj is not None:
+                    T = self.robot.link_pose(q, a.link) @ a.T_link_object
+                    oa = fcl.CollisionObject(padded_geometry(a.shape, 0.0)[0], fcl.Transform(T[:3, :3], T[:3, 3]))
+                    ob = fcl.CollisionObject(
+                        padded_geometry(obj.shape, 0.0)[0], fcl.Transform(obj.pose[:3, :3], obj.pose[:3, 3])
+                    )
+                    if fcl.distance(oa, ob, fcl.DistanceRequest(), fcl.DistanceResult()) <= clearance:
+                        continue
+                released.append((a.name, sup))
+        if released:
+            with self._lock:
+                attachments = dict(self._snap.attachments)
+                for name, sup in released:
+                    if name in attachments:
+                        attachments[name] = replace(attachments[name], support=attachments[name].support - {sup})
+                self._publish(attachments=attachments)
+        return released
+
     def attach_new(
-        self, name: str, shape: Shape, link: str, T_link_object: np.ndarray, touch_links: Iterable[str] | None = None
+        self,
+        name: str,
+        shape: Shape,
+        link: str,
+        T_link_object: np.ndarray,
+        touch_links: Iterable[str] | None = None,
+        support: Iterable[str] = (),
     ) -> None:
-        """Create an object directly in the hand, at T_link_object."""
+        """Create an object directly in the hand, at T_link_object (`support` as in `attach`)."""
         with self._lock:
             self._check_new_name(name)
             touch = self._touch_links(link, touch_links)
+            support = self._check_support(name, support)
             attachments = dict(self._snap.attachments)
-            attachments[name] = Attachment(name, shape, link, _frozen(T_link_object, "T_link_object"), touch)
+            attachments[name] = Attachment(name, shape, link, _frozen(T_link_object, "T_link_object"), touch, support)
             self._publish(attachments=attachments)
+
+    def _check_support(self, name: str, support: Iterable[str]) -> frozenset[str]:
+        support = [support] if isinstance(support, str) else list(support)
+        for s_name in support:
+            if s_name == name or s_name not in self._snap.objects:
+                raise UnknownNameError("support object", s_name, sorted(set(self._snap.objects) - {name}))
+        return frozenset(support)
 
     def detach(self, name: str, q) -> None:
         """Put an attached object back into the world where it is at configuration q."""
@@ -208,3 +264,20 @@ class World:
         for n in touch:
             r.link_index(n)  # raises with the valid names
         return frozenset(touch)
+
+
+def scene_from_config(cfg) -> list[tuple[str, Shape, np.ndarray]]:
+    """(name, shape, pose) of the config's `scene:` objects."""
+    from .geometry import Box, Cylinder, Sphere
+    from .transforms import make_transform
+
+    out = []
+    for o in cfg.scene:
+        if o.type == "box":
+            shape = Box(tuple(o.size))
+        elif o.type == "cylinder":
+            shape = Cylinder(o.radius, o.length)
+        else:
+            shape = Sphere(o.radius)
+        out.append((o.name, shape, make_transform(o.position, o.quat_xyzw)))
+    return out

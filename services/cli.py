@@ -287,14 +287,52 @@ def bench_reaction(
     )
 
 
+@bench_app.command("service")
+def bench_service(
+    config: str = typer.Option("panda", "--config", "-c", help=CONFIG_HELP),
+    seed: int = typer.Option(0, min=0, help="Seed of the goals."),
+    goals: int = typer.Option(20, min=1, help="Goals sent (one after the other)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
+) -> None:
+    """End to end over Zenoh: serve and robot --kinematic as processes; request -> result of simple goals."""
+    from replanner.bench import service
+
+    try:
+        result = service.run(config, resolve_config(config), seed=seed, goals=goals)
+    except ReplannerError as err:
+        _fail(err)
+    if as_json:
+        print(json.dumps(result, indent=2))
+        return
+    t = Table(title=f"service end to end: {result['robot']}, {result['transport']}")
+    for col in ("interval", "median", "p95", "n"):
+        t.add_column(col)
+    for key, label, unit in [
+        ("state_query_ms", "state query round trip", "ms"),
+        ("goal_accept_ms", "goal request -> accepted", "ms"),
+        ("goal_result_s", "goal request -> result", "s"),
+        ("trajectory_s", "of which the arm moves", "s"),
+        ("overhead_ms", "the rest (plan, time, transport, settle)", "ms"),
+    ]:
+        v = result[key]
+        t.add_row(label, f"{v['median']:.3f} {unit}", f"{v['p95']:.3f} {unit}", str(v["n"]))
+    Console().print(t)
+
+
 @app.command("demo")
 def demo() -> None:
     """Simulated pick-and-place with an intruding operator (not built yet)."""
     _fail(RuntimeError("`replanner demo` is not built yet: it arrives with issue 7 (sim, service and client)."))
 
 
+from .cli_service import register  # noqa: E402  (the service commands need `app`)
+
+register(app)
+
+
 def main() -> None:
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("transitions").setLevel(logging.WARNING)  # replanner.controller logs each transition once
     app(prog_name="replanner")
 
 

@@ -94,6 +94,15 @@ def test_plan_ok_reaches_the_goal(make_sim):
     assert all(t.reason for t in sim.controller.transitions)
 
 
+def test_goal_where_the_arm_is_succeeds_at_once(make_sim):
+    sim = make_sim()
+    assert go_to(sim, A, "a").status == GoalStatus.SUCCEEDED
+    n = len(sim.controller.transitions)
+    res = go_to(sim, A + 1e-4, "again")
+    assert res.status == GoalStatus.SUCCEEDED and "already at the goal" in res.reason
+    assert len(sim.controller.transitions) == n and sim.controller.state == State.WAITING.value
+
+
 def test_plan_fails_retries_and_gives_up(make_sim):
     sim = make_sim()
     assert go_to(sim, ARM_UP, "up").status == GoalStatus.SUCCEEDED

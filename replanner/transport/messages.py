@@ -1,0 +1,328 @@
+"""Message schemas: JSON control messages validated with pydantic, ROS 2 messages in CDR via rosbags."""
+
+from __future__ import annotations
+
+import json
+import math
+from functools import lru_cache
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from ..errors import InvalidInputError
+from ..geometry import Box, Cylinder, Mesh, Sphere
+from ..transforms import make_transform
+
+
+class DecodeError(InvalidInputError):
+    """A message could not be read; the message says which field and what is expected."""
+
+
+def _finite(values: list[float], name: str) -> list[float]:
+    if any(not math.isfinite(v) for v in values):
+        raise ValueError(f"{name} must be finite numbers (no NaN or inf)")
+    return values
+
+
+class _Msg(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3, description="[x, y, z]")]
+Quat = Annotated[list[float], Field(min_length=4, max_length=4, description="[x, y, z, w]")]
+
+
+class Pose(_Msg):
+    position: Vec3 = Field(description="[m] in the robot base frame")
+    quat_xyzw: Quat = [0.0, 0.0, 0.0, 1.0]
+
+    @field_validator("position", "quat_xyzw")
+    @classmethod
+    def _fin(cls, v, info):
+        return _finite(list(v), info.field_name)
+
+    def matrix(self) -> np.ndarray:
+        return make_transform(self.position, self.quat_xyzw)
+
+
+class PoseTarget(Pose):
+    link: str
+    position_tolerance: float | None = Field(None, gt=0.0, description="[m]")
+    orientation_tolerance: float | None = Field(None, gt=0.0, description="[rad]")
+
+
+class GoalRequest(_Msg):
+    id: str = Field(min_length=1, max_length=128)
+    joints: list[float] | None = Field(None, description="[rad], one per joint, in the service's joint order")
+    pose: PoseTarget | None = None
+    planner: str | None = None
+    deadline: float | None = Field(None, gt=0.0, lt=600.0, description="[s]")
+    velocity_scale: float = Field(1.0, gt=0.0, le=1.0)
+    acceleration_scale: float = Field(1.0, gt=0.0, le=1.0)
+
+    @field_validator("joints")
+    @classmethod
+    def _fin(cls, v):
+        return None if v is None else _finite(v, "joints")
+
+
+class CancelRequest(_Msg):
+    id: str = Field(min_length=1, max_length=128)
+
+
+class BoxShape(_Msg):
+    type: Literal["box"]
+    size: Vec3 = Field(description="full edge lengths [m]")
+
+
+class CylinderShape(_Msg):
+    type: Literal["cylinder"]
+    radius: float = Field(gt=0.0)
+    length: float = Field(gt=0.0)
+
+
+class SphereShape(_Msg):
+    type: Literal["sphere"]
+    radius: float = Field(gt=0.0)
+
+
+class MeshShape(_Msg):
+    type: Literal["mesh"]
+    vertices: list[Vec3] = Field(min_length=4, max_length=100_000)
+    faces: list[Annotated[list[int], Field(min_length=3, max_length=3)]] = Field(min_length=1, max_length=200_000)
+
+
+ShapeMsg = Annotated[BoxShape | CylinderShape | SphereShape | MeshShape, Field(discriminator="type")]
+
+
+def shape_from(msg) -> Box | Cylinder | Sphere | Mesh:
+    if isinstance(msg, BoxShape):
+        return Box(tuple(msg.size))
+    if isinstance(msg, CylinderShape):
+        return Cylinder(msg.radius, msg.length)
+    if isinstance(msg, SphereShape):
+        return Sphere(msg.radius)
+    return Mesh(np.asarray(msg.vertices, float), np.asarray(msg.faces, np.int64))
+
+
+def shape_to_msg(shape) -> dict:
+    if isinstance(shape, Box):
+        return {"type": "box", "size": list(shape.size)}
+    if isinstance(shape, Cylinder):
+        return {"type": "cylinder", "radius": shape.radius, "length": shape.length}
+    if isinstance(shape, Sphere):
+        return {"type": "sphere", "radius": shape.radius}
+    return {"type": "mesh", "vertices": np.asarray(shape.vertices).tolist(), "faces": np.asarray(shape.faces).tolist()}
+
+
+class SceneAdd(_Msg):
+    name: str = Field(min_length=1, max_length=128)
+    shape: ShapeMsg
+    pose: Pose
+
+
+class SceneMove(_Msg):
+    name: str = Field(min_length=1, max_length=128)
+    pose: Pose
+
+
+class SceneName(_Msg):
+    name: str = Field(min_length=1, max_length=128)
+
+
+class SceneAttach(_Msg):
+    name: str = Field(min_length=1, max_length=128)
+    link: str
+    touch_links: list[str] | None = None
+    support: list[str] = Field(default_factory=list, description="static objects it may touch until it left them")
+
+
+class Empty(_Msg):
+    pass
+
+
+def parse_json(model: type[_Msg], payload: bytes | None, what: str):
+    """Decode and validate a JSON request; DecodeError names the field and what is wrong."""
+    if not payload:
+        if model is Empty:
+            return Empty()
+        raise DecodeError(f"{what}: empty payload; send a JSON object ({_fields(model)})")
+    try:
+        data = json.loads(payload)
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise DecodeError(f"{what}: not valid JSON ({err})") from None
+    if not isinstance(data, dict):
+        raise DecodeError(f"{what}: the payload must be a JSON object ({_fields(model)}), got {type(data).__name__}")
+    try:
+        return model.model_validate(data)
+    except ValidationError as err:
+        parts = []
+        for e in err.errors():
+            loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
+            msg = e["msg"].removeprefix("Value error, ")
+            if e["type"] == "extra_forbidden":
+                msg = f"unknown field; allowed: {_fields(model)}"
+            parts.append(f"{loc}: {msg}")
+        raise DecodeError(f"{what}: " + "; ".join(parts)) from None
+
+
+def _fields(model) -> str:
+    return ", ".join(model.model_fields)
+
+
+def dumps(obj) -> bytes:
+    return json.dumps(obj, separators=(",", ":"), default=_default).encode()
+
+
+def _default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.floating | np.integer):
+        return o.item()
+    raise TypeError(type(o).__name__)
+
+
+# ------------------------------------------------------------------------------------- ROS 2 CDR
+@lru_cache(maxsize=1)
+def typestore():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE)
+
+
+JOINT_STATE = "sensor_msgs/msg/JointState"
+JOINT_TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
+POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
+
+
+def _stamp(t: float):
+    ts = typestore()
+    sec = int(math.floor(t))
+    return ts.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000)
+
+
+def _header(t: float, frame: str):
+    return typestore().types["std_msgs/msg/Header"](stamp=_stamp(t), frame_id=frame)
+
+
+def _time_of(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def _decode(data: bytes, typename: str, what: str):
+    try:
+        return typestore().deserialize_cdr(bytes(data), typename)
+    except Exception as err:  # rosbags raises several types on truncated or foreign bytes
+        raise DecodeError(f"{what}: not a CDR-encoded {typename} ({type(err).__name__}: {err})") from None
+
+
+def encode_joint_state(stamp: float, names, position, velocity=None, frame: str = "") -> bytes:
+    ts = typestore()
+    msg = ts.types[JOINT_STATE](
+        header=_header(stamp, frame),
+        name=list(names),
+        position=np.asarray(position, np.float64),
+        velocity=np.asarray(velocity if velocity is not None else [], np.float64),
+        effort=np.zeros(0, np.float64),
+    )
+    return bytes(ts.serialize_cdr(msg, JOINT_STATE))
+
+
+def decode_joint_state(data: bytes, joint_names) -> tuple[float, np.ndarray, np.ndarray | None]:
+    """(stamp [s], q in `joint_names` order, qd or None); missing joints or NaN are DecodeErrors."""
+    msg = _decode(data, JOINT_STATE, "joint_states")
+    names = list(msg.name)
+    pos = np.asarray(msg.position, np.float64)
+    if len(pos) != len(names):
+        raise DecodeError(f"joint_states: {len(names)} names but {len(pos)} positions")
+    missing = [n for n in joint_names if n not in names]
+    if missing:
+        raise DecodeError(f"joint_states: joints {missing} are missing; names given: {names}")
+    idx = [names.index(n) for n in joint_names]
+    q = pos[idx]
+    if not np.all(np.isfinite(q)):
+        raise DecodeError("joint_states: positions contain NaN or inf")
+    vel = np.asarray(msg.velocity, np.float64)
+    qd = vel[idx] if len(vel) == len(names) else None
+    return _time_of(msg.header.stamp), q, qd
+
+
+def encode_trajectory(start: float, names, times, q, qd, qdd, frame: str = "") -> bytes:
+    ts = typestore()
+    P = ts.types["trajectory_msgs/msg/JointTrajectoryPoint"]
+    D = ts.types["builtin_interfaces/msg/Duration"]
+    points = []
+    for t, a, b, c in zip(times, q, qd, qdd):
+        sec = int(math.floor(t))
+        points.append(
+            P(
+                positions=np.asarray(a, np.float64),
+                velocities=np.asarray(b, np.float64),
+                accelerations=np.asarray(c, np.float64),
+                effort=np.zeros(0, np.float64),
+                time_from_start=D(sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000),
+            )
+        )
+    msg = ts.types[JOINT_TRAJECTORY](header=_header(start, frame), joint_names=list(names), points=points)
+    return bytes(ts.serialize_cdr(msg, JOINT_TRAJECTORY))
+
+
+def decode_trajectory(data: bytes, joint_names):
+    """(start [s], times (n,), q, qd, qdd (n, dof)) in `joint_names` order."""
+    msg = _decode(data, JOINT_TRAJECTORY, "trajectory")
+    names = list(msg.joint_names)
+    missing = [n for n in joint_names if n not in names]
+    if missing:
+        raise DecodeError(f"trajectory: joints {missing} are missing; names given: {names}")
+    if not msg.points:
+        raise DecodeError("trajectory: no points")
+    idx = [names.index(n) for n in joint_names]
+    times = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points])
+    q = np.array([np.asarray(p.positions)[idx] for p in msg.points])
+    qd = np.array([np.asarray(p.velocities)[idx] if len(p.velocities) else np.zeros(len(idx)) for p in msg.points])
+    qdd = np.array(
+        [np.asarray(p.accelerations)[idx] if len(p.accelerations) else np.zeros(len(idx)) for p in msg.points]
+    )
+    if np.any(np.diff(times) <= 0) or not np.all(np.isfinite(q)):
+        raise DecodeError("trajectory: times must increase and positions be finite")
+    return _time_of(msg.header.stamp), times, q, qd, qdd
+
+
+def encode_cloud(stamp: float, points: np.ndarray, frame: str = "", width: int | None = None, height: int = 1) -> bytes:
+    """A PointCloud2 with float32 fields x, y, z (organised when height > 1; NaN where there was no return)."""
+    ts = typestore()
+    pts = np.ascontiguousarray(points, np.float32)
+    width = width if width is not None else len(pts) // max(height, 1)
+    F = ts.types["sensor_msgs/msg/PointField"]
+    fields = [F(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")]
+    msg = ts.types[POINT_CLOUD2](
+        header=_header(stamp, frame),
+        height=height,
+        width=width,
+        fields=fields,
+        is_bigendian=False,
+        point_step=12,
+        row_step=12 * width,
+        data=pts.view(np.uint8).reshape(-1),
+        is_dense=False,
+    )
+    return bytes(ts.serialize_cdr(msg, POINT_CLOUD2))
+
+
+def decode_cloud(data: bytes, what: str = "cloud") -> tuple[float, np.ndarray, int, int]:
+    """(stamp, points (N, 3) float32, width, height) from a PointCloud2 with float32 x, y, z fields."""
+    msg = _decode(data, POINT_CLOUD2, what)
+    offs = {f.name: (f.offset, f.datatype) for f in msg.fields}
+    if any(n not in offs or offs[n][1] != 7 for n in "xyz"):
+        raise DecodeError(f"{what}: needs float32 (datatype 7) fields x, y, z; got {sorted(offs)}")
+    if msg.is_bigendian:
+        raise DecodeError(f"{what}: big-endian clouds are not supported")
+    n = int(msg.width) * int(msg.height)
+    step = int(msg.point_step)
+    raw = np.asarray(msg.data, np.uint8)
+    if step < 12 or len(raw) != n * step:
+        raise DecodeError(f"{what}: {len(raw)} data bytes for {n} points of {step} bytes")
+    rows = raw.reshape(n, step)
+    pts = np.stack([rows[:, offs[c][0] : offs[c][0] + 4].copy().view(np.float32)[:, 0] for c in "xyz"], axis=1)
+    return _time_of(msg.header.stamp), pts, int(msg.width), int(msg.height)

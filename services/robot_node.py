@@ -1,0 +1,70 @@
+"""`replanner robot --kinematic`: a robot that follows the trajectory stream exactly and publishes joint states."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import sys
+import threading
+import time
+
+import zenoh
+
+from replanner.config import ReplannerConfig
+from replanner.driver import JointState, KinematicDriver, SampledTrajectory
+from replanner.errors import InvalidInputError
+from replanner.robot import RobotModel
+from replanner.transport import messages as m
+from replanner.transport.keys import Keys
+
+log = logging.getLogger(__name__)
+
+
+class KinematicRobotNode:
+    def __init__(self, cfg: ReplannerConfig, session: zenoh.Session, q0=None, clock=time.time):
+        self.robot = RobotModel.from_config(cfg.robot)
+        self.keys = Keys(self.robot.name, cfg.transport.namespace)
+        self.session = session
+        self.driver = KinematicDriver(
+            self.robot.home if q0 is None else q0, rate_hz=cfg.controller.driver_rate_hz, clock=clock
+        )
+        self.rejected = 0
+
+    def start(self) -> KinematicRobotNode:
+        self.pub = self.session.declare_publisher(self.keys.joint_states)
+        self.driver.subscribe(self._publish)
+        self.sub = self.session.declare_subscriber(self.keys.trajectory, self._on_trajectory)
+        self.driver.start()
+        return self
+
+    def stop(self) -> None:
+        self.sub.undeclare()
+        self.driver.stop()
+
+    def _publish(self, js: JointState) -> None:
+        self.pub.put(m.encode_joint_state(js.stamp, self.robot.joint_names, js.position, js.velocity))
+
+    def _on_trajectory(self, sample) -> None:
+        try:
+            start, t, q, qd, qdd = m.decode_trajectory(sample.payload.to_bytes(), self.robot.joint_names)
+        except InvalidInputError as err:
+            self.rejected += 1
+            log.warning("trajectory rejected: %s", err)
+            return
+        self.driver.execute(SampledTrajectory(t, q, qd, qdd), start)
+
+
+def run(cfg: ReplannerConfig, conf: zenoh.Config, q0=None) -> None:
+    from replanner.transport.session import open_session
+
+    done = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: done.set())
+    session = open_session(conf)
+    try:
+        node = KinematicRobotNode(cfg, session, q0).start()
+        print(f"replanner: kinematic {node.robot.name} on {node.keys.root} (Ctrl-C stops)", file=sys.stderr, flush=True)
+        done.wait()
+        node.stop()
+    finally:
+        session.close()

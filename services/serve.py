@@ -1,0 +1,395 @@
+"""`replanner serve`: the controller as a Zenoh service (see docs/protocol.md)."""
+
+from __future__ import annotations
+
+import logging
+import queue
+import signal
+import sys
+import threading
+import time
+
+import numpy as np
+import zenoh
+
+from replanner.collision import CollisionChecker
+from replanner.config import ReplannerConfig
+from replanner.controller import Controller, Goal, GoalRejected
+from replanner.driver import JointState
+from replanner.errors import InvalidInputError, ReplannerError, UnknownNameError, WorldError
+from replanner.perception import CloudFrame, CloudRejected, Perception
+from replanner.planning import Planner, PoseGoal
+from replanner.planproc import PlanningProcess
+from replanner.robot import RobotModel
+from replanner.trajectory import TrajectoryGenerator
+from replanner.transforms import check_transform
+from replanner.transport import messages as m
+from replanner.transport.keys import Keys
+from replanner.world import World, scene_from_config
+
+log = logging.getLogger(__name__)
+
+
+class Service:
+    """The controller, perception and world of one robot behind Zenoh keys.
+
+    Args:
+        cfg: the full config.
+        session: an open Zenoh session (the service does not close it).
+        planning_process: plan in a child process (the product default).
+    """
+
+    def __init__(
+        self, cfg: ReplannerConfig, session: zenoh.Session, *, planning_process: bool | None = None, clock=time.time
+    ):
+        self.cfg, self.session, self.clock = cfg, session, clock
+        self.robot = RobotModel.from_config(cfg.robot)
+        self.keys = Keys(self.robot.name, cfg.transport.namespace)
+        self.world = World(self.robot)
+        for name, shape, pose in scene_from_config(cfg):
+            self.world.add(name, shape, pose)
+        self.checker = CollisionChecker.from_config(self.robot, self.world, cfg.collision)
+        self.planner = Planner.from_config(self.checker, cfg.planning)
+        self.gen = TrajectoryGenerator(self.robot, self.checker, tube_radius=cfg.planning.tube_radius)
+        use_proc = cfg.controller.planning_process if planning_process is None else planning_process
+        self.process = PlanningProcess(cfg) if use_proc else None
+        self.perception = None
+        sensors: list[str] = []
+        if cfg.perception is not None and cfg.perception.sensors:
+            self.perception = Perception(
+                cfg.perception, self.robot, self.world, broadphase_cell=cfg.collision.broadphase_cell
+            )
+            sensors = [s.name for s in cfg.perception.sensors]
+        self.controller = Controller(
+            self.robot,
+            self.checker,
+            self.planner,
+            self.gen,
+            self._execute,
+            cfg.controller,
+            sensors=sensors,
+            clock=clock,
+            default_deadline=cfg.planning.deadline,
+            planning_process=self.process,
+        )
+        self.rejections: dict[str, int] = {}
+        self.last_js: JointState | None = None
+        self._requests: queue.Queue = queue.Queue(maxsize=256)
+        self._clouds: dict[str, tuple] = {}
+        self._cloud_event = threading.Event()
+        self._stop = threading.Event()
+        self._decl: list = []
+        self._threads: list[threading.Thread] = []
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> Service:
+        s, k = self.session, self.keys
+        self.pub_status = s.declare_publisher(k.status)
+        self.pub_transitions = s.declare_publisher(k.transitions)
+        self.pub_results = s.declare_publisher(k.results)
+        self.pub_trajectory = s.declare_publisher(k.trajectory)
+        self.pub_rejections = s.declare_publisher(k.rejections)
+        self.controller.subscribe(on_transition=self._on_transition, on_result=self._on_result)
+        self.controller.start()
+        for name in (
+            "goal",
+            "cancel",
+            "state",
+            "scene_add",
+            "scene_move",
+            "scene_remove",
+            "scene_attach",
+            "scene_detach",
+            "scene_list",
+            "map_clear",
+        ):
+            self._decl.append(s.declare_queryable(getattr(k, name), self._enqueue_query(name)))
+        self._decl.append(s.declare_subscriber(k.joint_states, self._on_joint_state))
+        if self.perception is not None:
+            self._decl.append(s.declare_subscriber(k.clouds, self._on_cloud))
+        for target, name in (
+            (self._serve_requests, "requests"),
+            (self._serve_clouds, "clouds"),
+            (self._publish_status, "status"),
+        ):
+            t = threading.Thread(target=target, name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
+        self.token = s.liveliness().declare_token(k.alive)
+        log.info(
+            "replanner serving %s (%s)",
+            k.root,
+            "cameras: " + ", ".join(self.controller.sensors)
+            if self.controller.sensors
+            else "no cameras: static objects only",
+        )
+        return self
+
+    def stop(self, brake_timeout: float = 2.0) -> None:
+        """Brake a moving arm (the brake trajectory is published), then stop answering."""
+        h = self.controller._handle
+        if h is not None and h.result is None:
+            try:
+                self.controller.cancel(h.id)
+                h.wait(brake_timeout)
+            except UnknownNameError:
+                pass  # finished in the meantime
+        self._stop.set()
+        self._cloud_event.set()
+        self.token.undeclare()
+        for d in self._decl:
+            d.undeclare()
+        self.controller.stop()
+        for t in self._threads:
+            t.join(timeout=2.0)
+        if self.process is not None:
+            self.process.close()
+
+    # ------------------------------------------------------------------ outputs
+    def _execute(self, traj, start: float) -> None:
+        t, q, qd, qdd = traj.sample(self.cfg.transport.trajectory_dt)
+        self.pub_trajectory.put(m.encode_trajectory(start, self.robot.joint_names, t, q, qd, qdd, self.robot.base_link))
+        self.controller.events_log.append(
+            (self.clock(), "trajectory_published", {"start": start, "duration": float(t[-1])})
+        )
+
+    def _on_transition(self, rec) -> None:
+        self.pub_transitions.put(
+            m.dumps(
+                {
+                    "stamp": rec.stamp,
+                    "from": rec.source,
+                    "to": rec.dest,
+                    "trigger": rec.trigger,
+                    "reason": rec.reason,
+                    "goal_id": rec.goal_id,
+                }
+            )
+        )
+
+    def _on_result(self, res) -> None:
+        self.pub_results.put(
+            m.dumps({"id": res.goal_id, "status": res.status.value, "reason": res.reason, "stamp": res.stamp})
+        )
+
+    def state(self) -> dict:
+        st = self.controller.status()
+        js = self.last_js
+        occ = self.world.occupancy
+        st.update(
+            {
+                "robot": self.robot.name,
+                "joint_names": list(self.robot.joint_names),
+                "position": js.position.tolist() if js else None,
+                "stamp": self.clock(),
+                "objects": sorted(self.world.objects),
+                "attachments": sorted(self.world.attachments),
+                "map_voxels": len(occ) if occ is not None else 0,
+                "rejections": dict(self.rejections),
+            }
+        )
+        return st
+
+    def _publish_status(self) -> None:
+        period = 1.0 / self.cfg.transport.status_rate_hz
+        while not self._stop.wait(period):
+            try:
+                self.pub_status.put(m.dumps(self.state()))
+            except Exception:
+                log.exception("status publishing failed")
+
+    def _reject(self, source: str, err: Exception) -> None:
+        self.rejections[source] = self.rejections.get(source, 0) + 1
+        log.warning("%s rejected: %s", source, err)
+        try:
+            self.pub_rejections.put(m.dumps({"source": source, "reason": str(err), "count": self.rejections[source]}))
+        except Exception:
+            log.exception("rejection publishing failed")
+
+    # ------------------------------------------------------------------ stream inputs (callbacks: never block)
+    def _on_joint_state(self, sample) -> None:
+        try:
+            stamp, q, qd = m.decode_joint_state(sample.payload.to_bytes(), self.robot.joint_names)
+            js = JointState(stamp, q, qd if qd is not None else np.zeros_like(q))
+            if self.perception is not None:
+                self.perception.add_joint_state(stamp, q)
+        except (InvalidInputError, ReplannerError) as err:
+            self._reject("joint_states", err)
+            return
+        self.last_js = js
+        self.controller.on_joint_state(js)
+
+    def _on_cloud(self, sample) -> None:
+        sensor = str(sample.key_expr).rsplit("/", 1)[-1]
+        self._clouds[sensor] = (
+            sample.payload.to_bytes(),
+            sample.attachment.to_bytes() if sample.attachment else None,
+        )  # the newest per camera: a slow pipeline skips frames
+        self._cloud_event.set()
+
+    def _serve_clouds(self) -> None:
+        while not self._stop.is_set():
+            self._cloud_event.wait(0.5)
+            self._cloud_event.clear()
+            for sensor in list(self._clouds):
+                item = self._clouds.pop(sensor, None)
+                if item is not None:
+                    self._integrate(sensor, *item)
+
+    def _integrate(self, sensor: str, data: bytes, attachment: bytes | None) -> None:
+        try:
+            stamp, pts, width, height = m.decode_cloud(data, f"clouds/{sensor}")
+            T = None
+            if attachment:
+                pose = m.parse_json(m.Pose, attachment, f"clouds/{sensor} attachment")
+                T = check_transform(pose.matrix(), "sensor pose")
+            cfg = next((s for s in self.cfg.perception.sensors if s.name == sensor), None)
+            organized = cfg is not None and height > 1 and width == cfg.width and height == cfg.height
+            self.perception.integrate(CloudFrame(sensor, stamp, pts, T, organized=organized))
+        except (CloudRejected, InvalidInputError, ReplannerError) as err:
+            self._reject(f"clouds/{sensor}", err)
+            return
+        self.controller.on_cloud(sensor, stamp)
+        self.controller.on_map_update(stamp)
+
+    # ------------------------------------------------------------------ requests (answered by a worker)
+    def _enqueue_query(self, name: str):
+        def callback(query) -> None:
+            try:
+                self._requests.put_nowait((name, query))
+            except queue.Full:
+                query.reply_err(m.dumps({"error": "the service is overloaded; try again"}))
+                query.drop()
+
+        return callback
+
+    def _serve_requests(self) -> None:
+        while not self._stop.is_set():
+            try:
+                name, query = self._requests.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            payload = query.payload.to_bytes() if query.payload else None
+            try:
+                reply = getattr(self, f"_q_{name}")(payload)
+                query.reply(query.key_expr, m.dumps(reply))
+            except (InvalidInputError, ReplannerError, GoalRejected, WorldError, UnknownNameError) as err:
+                query.reply_err(m.dumps({"error": str(err)}))
+            except Exception as err:  # answer, log, and keep serving
+                log.exception("request %s failed", name)
+                query.reply_err(m.dumps({"error": f"internal error: {err}"}))
+            finally:
+                query.drop()
+
+    def _q_goal(self, payload):
+        req = m.parse_json(m.GoalRequest, payload, "goal")
+        pose = None
+        if req.pose is not None:
+            pose = PoseGoal(
+                req.pose.link,
+                req.pose.position,
+                req.pose.quat_xyzw,
+                req.pose.position_tolerance,
+                req.pose.orientation_tolerance,
+            )
+        joints = np.asarray(req.joints, float) if req.joints is not None else None
+        goal = Goal(
+            req.id,
+            joints=joints,
+            pose=pose,
+            planner=req.planner,
+            deadline=req.deadline,
+            velocity_scale=req.velocity_scale,
+            acceleration_scale=req.acceleration_scale,
+        )
+        handle = self.controller.submit(goal)
+        return {"accepted": True, "id": req.id, "goal_joints": handle.q_goal.tolist()}
+
+    def _q_cancel(self, payload):
+        req = m.parse_json(m.CancelRequest, payload, "cancel")
+        self.controller.cancel(req.id)
+        return {"canceled": req.id}
+
+    def _q_state(self, payload):
+        m.parse_json(m.Empty, payload, "state")
+        return self.state()
+
+    def _q_scene_add(self, payload):
+        req = m.parse_json(m.SceneAdd, payload, "scene/add")
+        self.world.add(req.name, m.shape_from(req.shape), req.pose.matrix())
+        return {"added": req.name}
+
+    def _q_scene_move(self, payload):
+        req = m.parse_json(m.SceneMove, payload, "scene/move")
+        self.world.move(req.name, req.pose.matrix())
+        return {"moved": req.name}
+
+    def _q_scene_remove(self, payload):
+        req = m.parse_json(m.SceneName, payload, "scene/remove")
+        self.world.remove(req.name)
+        return {"removed": req.name}
+
+    def _current_q(self) -> np.ndarray:
+        if self.last_js is None:
+            raise InvalidInputError("no joint state yet: cannot tell where the hand is")
+        return self.last_js.position
+
+    def _q_scene_attach(self, payload):
+        req = m.parse_json(m.SceneAttach, payload, "scene/attach")
+        self.world.attach(req.name, req.link, self._current_q(), req.touch_links, req.support)
+        return {"attached": req.name, "link": req.link}
+
+    def _q_scene_detach(self, payload):
+        req = m.parse_json(m.SceneName, payload, "scene/detach")
+        self.world.detach(req.name, self._current_q())
+        return {"detached": req.name}
+
+    def _q_scene_list(self, payload):
+        m.parse_json(m.Empty, payload, "scene/list")
+        snap = self.world.snapshot()
+        objects = [
+            {"name": o.name, "shape": m.shape_to_msg(o.shape), "pose": _pose(o.pose)} for o in snap.objects.values()
+        ]
+        attached = [
+            {
+                "name": a.name,
+                "link": a.link,
+                "shape": m.shape_to_msg(a.shape),
+                "pose_in_link": _pose(a.T_link_object),
+                "support": sorted(a.support),
+            }
+            for a in snap.attachments.values()
+        ]
+        return {"objects": objects, "attachments": attached}
+
+    def _q_map_clear(self, payload):
+        m.parse_json(m.Empty, payload, "map/clear")
+        if self.perception is not None:
+            self.perception.clear()
+        else:
+            self.world.set_occupancy(None)
+        return {"cleared": True}
+
+
+def _pose(T) -> dict:
+    from replanner.transforms import matrix_to_quat
+
+    return {"position": T[:3, 3].tolist(), "quat_xyzw": matrix_to_quat(T[:3, :3]).tolist()}
+
+
+def run(cfg: ReplannerConfig, conf: zenoh.Config) -> None:
+    """Serve until SIGINT or SIGTERM; then brake, withdraw the liveliness token and close."""
+    from replanner.transport.session import open_session
+
+    done = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: done.set())
+    session = open_session(conf)
+    try:
+        service = Service(cfg, session).start()
+        print(f"replanner: serving {service.keys.root} (Ctrl-C stops)", file=sys.stderr, flush=True)
+        done.wait()
+        log.info("stopping")
+        service.stop()
+    finally:
+        session.close()

@@ -1,0 +1,113 @@
+"""Keys, Zenoh session configs and message codecs, without a running service."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from replanner.config import TransportConfig
+from replanner.errors import ConfigError, InvalidInputError
+from replanner.transport import messages as m
+from replanner.transport.keys import KEYS, Keys
+from replanner.transport.session import make_config
+
+NAMES = [f"j{i}" for i in range(7)]
+
+
+def test_keys_are_versioned_and_validated():
+    k = Keys("panda", "lab/cell3")
+    assert k.goal == "lab/cell3/@v1/panda/goal"
+    assert k.scene_add == "lab/cell3/@v1/panda/scene/add"
+    assert k.cloud("front") == "lab/cell3/@v1/panda/clouds/front"
+    assert len(KEYS) == 18
+    for bad in ("pan da", "a/*", "", "x/"):
+        with pytest.raises(InvalidInputError, match="letters, digits"):
+            Keys(bad)
+
+
+def _conf(**kw) -> dict:
+    return json.loads(str(make_config(TransportConfig(), **kw)))
+
+
+def test_session_config_defaults_are_loopback_peers_without_multicast():
+    serve = _conf(role="service")
+    assert serve["mode"] == "peer" and serve["listen"]["endpoints"] == ["tcp/127.0.0.1:7448"]
+    assert serve["scouting"]["multicast"]["enabled"] is False
+    node = _conf(role="node")
+    assert node["connect"]["endpoints"] == ["tcp/127.0.0.1:7448"]
+    assert node["listen"]["endpoints"] == ["tcp/127.0.0.1:0"]
+    client = _conf(role="service", mode="client", connect=["tcp/10.0.0.2:7447"])
+    assert client["mode"] == "client" and client["connect"]["endpoints"] == ["tcp/10.0.0.2:7447"]
+
+
+def test_session_config_errors_say_what_to_change(tmp_path):
+    with pytest.raises(ConfigError, match="--mode must be peer, client or router"):
+        _conf(role="node", mode="server")
+    with pytest.raises(ConfigError, match="a Zenoh client cannot listen"):
+        _conf(role="service", mode="client", listen=["tcp/127.0.0.1:7000"])
+    bad = tmp_path / "z.json5"
+    bad.write_text("{ mode: ")
+    with pytest.raises(ConfigError, match="z.json5: not a usable Zenoh JSON5 config"):
+        _conf(role="node", zenoh_file=str(bad))
+
+
+def test_zenoh_json5_file_is_used_and_flags_override_it(tmp_path):
+    f = tmp_path / "router.json5"
+    f.write_text('{ mode: "router", listen: { endpoints: ["tcp/127.0.0.1:7999"] } }')
+    conf = _conf(role="service", zenoh_file=str(f))
+    assert conf["mode"] == "router" and conf["listen"]["endpoints"] == ["tcp/127.0.0.1:7999"]
+    conf = _conf(role="service", zenoh_file=str(f), mode="peer", listen=["tcp/127.0.0.1:7998"])
+    assert conf["mode"] == "peer" and conf["listen"]["endpoints"] == ["tcp/127.0.0.1:7998"]
+
+
+def test_cdr_round_trips():
+    q = np.linspace(-1, 1, 7)
+    stamp, q2, qd = m.decode_joint_state(m.encode_joint_state(12.25, NAMES, q, q * 2), NAMES[::-1])
+    assert stamp == 12.25 and np.array_equal(q2, q[::-1]) and np.array_equal(qd, 2 * q[::-1])
+    t = np.array([0.0, 0.01, 0.02])
+    Q = np.arange(21.0).reshape(3, 7)
+    start, t2, Q2, Qd, Qdd = m.decode_trajectory(m.encode_trajectory(5.5, NAMES, t, Q, Q, Q), NAMES)
+    assert start == 5.5 and np.allclose(t2, t) and np.array_equal(Q2, Q) and np.array_equal(Qdd, Q)
+    pts = np.random.default_rng(0).normal(size=(12, 3)).astype(np.float32)
+    stamp, p2, w, h = m.decode_cloud(m.encode_cloud(3.0, pts, "cam", width=4, height=3))
+    assert (stamp, w, h) == (3.0, 4, 3) and np.array_equal(p2, pts)
+
+
+def test_wrong_cdr_is_a_decode_error_naming_the_type():
+    js = m.encode_joint_state(1.0, NAMES, np.zeros(7))
+    with pytest.raises(m.DecodeError, match="PointCloud2"):
+        m.decode_cloud(js)
+    with pytest.raises(m.DecodeError, match="JointState"):
+        m.decode_joint_state(js[: len(js) // 2], NAMES)
+
+
+def test_cloud_with_other_fields_is_read_by_offset():
+    """A PointCloud2 with x, y, z, rgb (16-byte points), as RealSense drivers publish."""
+    ts = m.typestore()
+    F = ts.types["sensor_msgs/msg/PointField"]
+    pts = np.random.default_rng(1).normal(size=(5, 3)).astype(np.float32)
+    raw = np.zeros((5, 4), np.float32)
+    raw[:, :3] = pts
+    msg = ts.types[m.POINT_CLOUD2](
+        header=m._header(1.0, "cam"),
+        height=1,
+        width=5,
+        fields=[F(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate(["x", "y", "z", "rgb"])],
+        is_bigendian=False,
+        point_step=16,
+        row_step=80,
+        data=raw.view(np.uint8).ravel(),
+        is_dense=True,
+    )
+    _, p2, _, _ = m.decode_cloud(bytes(ts.serialize_cdr(msg, m.POINT_CLOUD2)))
+    assert np.array_equal(p2, pts)
+
+
+def test_json_requests_name_the_field():
+    with pytest.raises(m.DecodeError, match=r"goal: pose.position: List should have at least 3 items"):
+        m.parse_json(m.GoalRequest, b'{"id": "a", "pose": {"link": "l", "position": [1, 2]}}', "goal")
+    with pytest.raises(m.DecodeError, match="velocity_scale"):
+        m.parse_json(m.GoalRequest, b'{"id": "a", "joints": [0], "velocity_scale": 0}', "goal")
+    assert m.parse_json(m.Empty, b"", "state") == m.Empty()
