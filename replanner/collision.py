@@ -78,9 +78,11 @@ class _Body:
     T_link_body: np.ndarray
     raw_shape: Shape
     env: fcl.CollisionGeometry  # padded by the world padding
+    map_: fcl.CollisionGeometry  # padded by the occupancy-map padding
     self_: fcl.CollisionGeometry  # padded by the self padding
     raw: fcl.CollisionGeometry
     env_box: tuple[np.ndarray, np.ndarray]
+    map_box: tuple[np.ndarray, np.ndarray]
     self_box: tuple[np.ndarray, np.ndarray]
     raw_box: tuple[np.ndarray, np.ndarray]
     attached: bool
@@ -125,9 +127,9 @@ class _Scene:
         slots, offsets = zip(*(robot.frame_offset(b.link) for b in bodies))
         self.body_slot = np.array(slots, dtype=np.int64)
         self.body_off = np.stack([off @ b.T_link_body for off, b in zip(offsets, bodies)])  # T_frame_body
-        # local boxes, padded for the world [0] and for self checks [1]: (2, B, 3)
-        c = np.stack([np.stack([b.env_box[0] for b in bodies]), np.stack([b.self_box[0] for b in bodies])])
-        h = np.stack([np.stack([b.env_box[1] for b in bodies]), np.stack([b.self_box[1] for b in bodies])])
+        # local boxes, padded for the world [0], for self checks [1] and for the map [2]: (3, B, 3)
+        c = np.stack([np.stack([getattr(b, k)[0] for b in bodies]) for k in ("env_box", "self_box", "map_box")])
+        h = np.stack([np.stack([getattr(b, k)[1] for b in bodies]) for k in ("env_box", "self_box", "map_box")])
         self.box_c = np.concatenate([c, np.ones(c.shape[:2] + (1,))], axis=-1)[..., None]  # homogeneous (2, B, 4, 1)
         self.box_h = h[..., None]  # (2, B, 3, 1)
         # bounding balls of the unpadded bodies: centre (B, 4, 1) homogeneous in the body frame, radius (B,)
@@ -189,6 +191,10 @@ class _Scene:
     @staticmethod
     def _body(checker, name, link, link_index, T_lb, shape, attached, touch) -> _Body:
         env, env_box = padded_geometry(shape, checker.padding)
+        if checker.map_padding == checker.padding:
+            map_, map_box = env, env_box
+        else:
+            map_, map_box = padded_geometry(shape, checker.map_padding)
         own, own_box = padded_geometry(shape, checker.robot.self_body_padding)
         raw, raw_box = padded_geometry(shape, 0.0)
         return _Body(
@@ -198,9 +204,11 @@ class _Scene:
             np.asarray(T_lb, dtype=float),
             shape,
             env,
+            map_,
             own,
             raw,
             env_box,
+            map_box,
             own_box,
             raw_box,
             attached,
@@ -214,6 +222,7 @@ class _ThreadObjects:
     def __init__(self, scene: _Scene):
         self.scene = scene
         self.env = [fcl.CollisionObject(b.env) for b in scene.bodies]
+        self.map_ = [fcl.CollisionObject(b.map_) for b in scene.bodies]
         self.self_ = [fcl.CollisionObject(b.self_) for b in scene.bodies]
         self.raw = [fcl.CollisionObject(b.raw) for b in scene.bodies]
 
@@ -225,6 +234,7 @@ class CollisionChecker:
         robot: the robot model (its bodies, self-collision pairs and self padding).
         world: static objects, attachments and the occupancy map; edits are seen by the next check.
         padding: safety padding [m] around the robot against the world (not against itself).
+        map_padding: padding [m] against the occupancy map (people are there); default: `padding`.
         path_resolution: max displacement [m] of any robot point between two configurations a path check tests.
         allowed_contacts: (link, object) pairs that may touch, e.g. ("panda_link0", "table"); "octree" names
             the occupancy map.
@@ -237,6 +247,7 @@ class CollisionChecker:
         world: World,
         *,
         padding: float = 0.01,
+        map_padding: float | None = None,
         path_resolution: float = 0.01,
         allowed_contacts: Iterable[tuple[str, str]] = (),
         check_limits: bool = True,
@@ -250,6 +261,9 @@ class CollisionChecker:
         self.robot = robot
         self.world = world
         self.padding = float(padding)
+        self.map_padding = self.padding if map_padding is None else float(map_padding)
+        if not (0.0 <= self.map_padding < 1.0):
+            raise InvalidInputError(f"map_padding must be in [0, 1) m, got {map_padding}")
         self.path_resolution = float(path_resolution)
         self.check_limits = check_limits
         allowed = set()
@@ -271,6 +285,7 @@ class CollisionChecker:
             robot,
             world,
             padding=cfg.padding,
+            map_padding=cfg.map_padding,
             path_resolution=cfg.path_resolution,
             allowed_contacts=cfg.allowed_contacts,
         )
@@ -320,7 +335,7 @@ class CollisionChecker:
         elo, ehi = lo[:, 0], hi[:, 0]
         occ = snap.occupancy
         if occ is not None and len(occ):
-            cand_oct = occ.any_in_boxes(elo, ehi) & scene.octree_mask
+            cand_oct = occ.any_in_boxes(lo[:, 2], hi[:, 2]) & scene.octree_mask
         else:
             cand_oct = np.zeros(elo.shape[:2], dtype=bool)
         if octree_only:
@@ -355,6 +370,7 @@ class CollisionChecker:
         req = self._request
         collide = fcl.collide
         placed_env: dict[int, object] = {}
+        placed_map: dict[int, object] = {}
         placed_self: dict[int, object] = {}
 
         def place(group, placed, bi):
@@ -369,7 +385,7 @@ class CollisionChecker:
         bodies = scene.bodies
         for kind, a, b in tests:
             if kind == 0:
-                if collide(place(objs.env, placed_env, a), octree, req):
+                if collide(place(objs.map_, placed_map, a), octree, req):
                     return Contact("octree", bodies[a].name, OCTREE)
             elif kind == 1:
                 name, obj = scene.obstacles[b]
@@ -425,10 +441,13 @@ class CollisionChecker:
         return valid, contacts
 
     # ------------------------------------------------------------------ public API
-    def is_valid(self, q) -> bool:
-        """True if q [rad] is within limits and collision-free with `padding` against the world."""
+    def is_valid(self, q, octree_only: bool = False) -> bool:
+        """True if q [rad] is within limits and collision-free with `padding` against the world.
+
+        octree_only: against the occupancy map alone (with `map_padding`).
+        """
         Q = self.robot.check_q(q).reshape(1, -1)
-        valid, _ = self._first_invalid(Q, True)
+        valid, _ = self._first_invalid(Q, True, octree_only)
         return bool(valid[0])
 
     def check(self, q) -> Contact | None:

@@ -98,6 +98,13 @@ class RobotConfig(_Section):
 
 class CollisionConfig(_Section):
     padding: float = Field(0.01, ge=0.0, le=0.2, description="Safety padding around the robot vs. the world [m].")
+    map_padding: float | None = Field(
+        None,
+        ge=0.0,
+        le=0.3,
+        description="Padding against the occupancy map, where people show up [m]; default: padding. "
+        "Planned paths keep this distance from what the cameras see.",
+    )
     path_resolution: float = Field(
         0.02,
         gt=0.0,
@@ -264,6 +271,11 @@ class PlanningConfig(_Section):
 
 
 class ControllerConfig(_Section):
+    reaction: Literal["replan", "stop_and_wait", "none"] = Field(
+        "replan",
+        description="Path blocked while moving: replan on the move (paper 002); brake, wait and plan from rest "
+        "(MoveIt-style baseline); or ignore the map once moving (no monitoring; for comparison only).",
+    )
     policy: Literal["wait_and_resume", "abort"] = Field(
         "wait_and_resume", description="After a safety brake: hold and resume when clear, or fail the goal."
     )
@@ -329,6 +341,53 @@ class SceneObjectConfig(_Section):
         return self
 
 
+Range = tuple[float, float]
+
+
+class NoiseConfig(_Section):
+    depth_sigma: float = Field(0.0, ge=0.0, le=0.1, description="Depth noise at 1 m, growing with range^2 [m].")
+    dropout: float = Field(0.0, ge=0.0, le=0.5, description="Share of pixels with no return.")
+    outliers: float = Field(0.0, ge=0.0, le=0.1, description="Share of pixels at a random depth.")
+
+
+class OperatorConfig(_Section):
+    enabled: bool = True
+    stand: Vec3 = Field((0.45, -1.0, 0.3), description="Where the operator's shoulder is [m, base frame].")
+    first_after: float = Field(3.0, ge=0.0, description="First intrusion this long after the start [s].")
+    interval: Range = Field((2.0, 5.0), description="Pause between the end of one intrusion and the next [s].")
+    in_path_probability: float = Field(0.75, ge=0.0, le=1.0, description="Share of intrusions aimed at the path.")
+    lead_time: Range = Field((0.7, 1.4), description="An aimed hand goes where the arm will be this much later [s].")
+    linger: Range = Field((1.0, 2.5), description="The hand stays this long [s].")
+    speed: float = Field(1.0, gt=0.0, le=3.0, description="Hand speed in and out [m/s].")
+    arm_radius: float = Field(0.05, gt=0.0, le=0.3, description="Forearm capsule radius [m].")
+    arm_length: float = Field(0.35, gt=0.0, le=1.5, description="Forearm capsule length [m].")
+    keep_off_arm: float = Field(
+        0.12,
+        ge=0.0,
+        description="Entries whose way in passes closer than this to the arm's current pose are not made [m].",
+    )
+
+
+class TaskConfig(_Section):
+    part_size: Vec3 = Field((0.03, 0.03, 0.06), description="The carried part, a box [m].")
+    bins: tuple[str, str] = Field(("bin_a", "bin_b"), description="Scene objects (bin floors) parts rest on.")
+    grasp_gap: float = Field(0.02, gt=0.0, le=0.1, description="Suction: the tip stops this far above the part [m].")
+    approach_height: float = Field(0.12, gt=0.0, le=0.5, description="Pre-grasp/place height above the part [m].")
+    place_gap: float = Field(0.015, ge=0.0, le=0.1, description="A placed part is let go this far above the floor [m].")
+    velocity_scale: float = Field(0.5, gt=0.0, le=1.0, description="Share of the joint speed limits the task uses.")
+
+
+class SimConfig(_Section):
+    physics_hz: float = Field(1000.0, ge=100.0, le=5000.0, description="pybullet steps per second.")
+    joint_state_hz: float = Field(250.0, ge=50.0, le=1000.0, description="Joint-state rate of the simulated arm [Hz].")
+    camera_rate_hz: float | None = Field(None, gt=0.0, le=60.0, description="Overrides every camera's rate_hz.")
+    truth_rate_hz: float = Field(100.0, gt=0.0, le=1000.0, description="Ground-truth clearance samples [Hz].")
+    path_check_hz: float = Field(20.0, gt=0.0, le=200.0, description="Ground truth: obstacle on the planned path [Hz].")
+    noise: NoiseConfig = Field(default_factory=NoiseConfig)
+    operator: OperatorConfig = Field(default_factory=OperatorConfig)
+    task: TaskConfig = Field(default_factory=TaskConfig)
+
+
 class ReplannerConfig(_Section):
     robot: RobotConfig
     collision: CollisionConfig = Field(default_factory=CollisionConfig)
@@ -337,6 +396,7 @@ class ReplannerConfig(_Section):
     controller: ControllerConfig = Field(default_factory=ControllerConfig)
     transport: TransportConfig = Field(default_factory=TransportConfig)
     scene: list[SceneObjectConfig] = Field(default_factory=list, description="Static objects present at start")
+    sim: SimConfig = Field(default_factory=SimConfig)
 
 
 def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:
@@ -398,8 +458,37 @@ def load_config(path: str | os.PathLike) -> ReplannerConfig:
         raise ConfigError(
             f"config file not found: {p} (pass an existing YAML file, e.g. configs/panda.yaml)", source=str(p)
         )
+    data = _read_yaml(p)
+    base_dir = p.parent.resolve()
+    seen = [p.resolve()]
+    while isinstance(data, dict) and "base" in data:
+        ref = data.pop("base")
+        if not isinstance(ref, str):
+            raise ConfigError(f"{p}: base: give the path of another config file (got {ref!r})", source=str(p))
+        bp = Path(ref) if Path(ref).is_absolute() else base_dir / ref
+        if not bp.is_file():
+            raise ConfigError(f"{p}: base: file not found: {bp}", source=str(p), field="base")
+        if bp.resolve() in seen:
+            raise ConfigError(f"{p}: base: {bp} is included twice (a cycle)", source=str(p), field="base")
+        seen.append(bp.resolve())
+        base = _read_yaml(bp)
+        data = _merge(base, data)
+        base_dir = bp.parent.resolve()  # relative paths of the merged file: the base's (profiles live together)
+    return parse_config(data, source=str(p), base_dir=base_dir)
+
+
+def _read_yaml(p: Path) -> Any:
     try:
-        data = yaml.safe_load(p.read_text())
+        return yaml.safe_load(p.read_text())
     except yaml.YAMLError as err:
         raise ConfigError(f"{p}: not valid YAML: {err}", source=str(p)) from None
-    return parse_config(data, source=str(p), base_dir=p.parent.resolve())
+
+
+def _merge(base: Any, over: Any) -> Any:
+    """`over` on top of `base`: mappings merge key by key, anything else (lists too) is replaced."""
+    if isinstance(base, dict) and isinstance(over, dict):
+        out = dict(base)
+        for k, v in over.items():
+            out[k] = _merge(base.get(k), v) if k in base else v
+        return out
+    return over

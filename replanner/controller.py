@@ -168,6 +168,7 @@ class Controller:
             robot,
             checker.world,
             padding=max(cfg.safety_distance, checker.padding),
+            map_padding=cfg.safety_distance,  # the safety distance is kept from what the cameras see
             path_resolution=checker.path_resolution,
             allowed_contacts=checker._allowed_contacts,
             check_limits=False,
@@ -680,6 +681,9 @@ class Controller:
         state = self.state
         if state == State.WAITING.value or self._last_js is None:
             return
+        if self.cfg.reaction == "none":  # the comparison baseline: plan once, never look again
+            self._reached(now)
+            return
         # holding: the way to the goal, not the stretch the brake still travels
         rem = self.remaining_path(now, to_curve_end=state == State.HOLDING.value)
         if rem is None:
@@ -699,6 +703,9 @@ class Controller:
         if state == State.MONITORING.value:
             if self._reached(now):
                 return
+            if not clear and self.cfg.reaction == "stop_and_wait":
+                self._safety_brake("an obstacle is on the remaining path: stop, wait, then plan from rest")
+                return
             if not clear:
                 self._pending_since = now
                 self._clear_count = 0
@@ -712,7 +719,7 @@ class Controller:
                 return
             q = self._measured()
             # "clearance >= safety distance" is a boolean check with the robot inflated by that distance
-            if not self._safety.is_valid(q):
+            if not self._safety.is_valid(q, octree_only=True):
                 c = self.checker.clearance(q, max_distance=max(0.2, 2 * self.cfg.safety_distance))
                 self.last_clearance = c.distance
                 self._safety_brake(f"{c.body} is {c.distance:.3f} m from {c.obstacle}, within the safety distance")

@@ -281,3 +281,27 @@ def scene_from_config(cfg) -> list[tuple[str, Shape, np.ndarray]]:
             shape = Sphere(o.radius)
         out.append((o.name, shape, make_transform(o.position, o.quat_xyzw)))
     return out
+
+
+def world_boxes(objects) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """World-aligned bounding boxes (lo, hi) of (name, shape, pose) objects."""
+    from .geometry import local_box
+
+    out = {}
+    for name, shape, pose in objects:
+        c, h = local_box(shape)
+        wc, wh = pose[:3, :3] @ c + pose[:3, 3], np.abs(pose[:3, :3]) @ h
+        out[name] = (wc - wh, wc + wh)
+    return out
+
+
+def top_centers(objects) -> dict[str, np.ndarray]:
+    """Centre of the top face of each (name, shape, pose) box, e.g. where a part is set down on a bin's floor."""
+    from .geometry import Box
+
+    out = {}
+    for name, shape, pose in objects:
+        if isinstance(shape, Box):
+            half = np.abs(pose[:3, :3]) @ (np.asarray(shape.size) / 2)  # of the world-aligned bounding box
+            out[name] = pose[:3, 3] + np.array([0.0, 0.0, half[2]])
+    return out

@@ -319,15 +319,11 @@ def bench_service(
     Console().print(t)
 
 
-@app.command("demo")
-def demo() -> None:
-    """Simulated pick-and-place with an intruding operator (not built yet)."""
-    _fail(RuntimeError("`replanner demo` is not built yet: it arrives with issue 7 (sim, service and client)."))
-
-
 from .cli_service import register  # noqa: E402  (the service commands need `app`)
+from .cli_sim import register as register_sim  # noqa: E402
 
 register(app)
+register_sim(app)
 
 
 def main() -> None:

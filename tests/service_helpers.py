@@ -2,48 +2,13 @@
 
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import zenoh
+from replanner_services.procs import Proc, replanner_cmd  # noqa: F401
 
 from replanner.transport.session import free_port, node_session  # noqa: F401  (tests import them from here)
-
-
-def replanner_cmd(*args: str) -> list[str]:
-    return [sys.executable, "-m", "replanner_services.cli", *args]
-
-
-class Proc:
-    """A child process whose output goes to a log file (read back on failure)."""
-
-    def __init__(self, name: str, args: list[str], log_dir: Path):
-        self.name = name
-        self.log = log_dir / f"{name}.log"
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        self._f = open(self.log, "w")  # noqa: SIM115 (closed in stop)
-        self.p = subprocess.Popen(args, stdout=self._f, stderr=subprocess.STDOUT, env=env)
-
-    def tail(self, n: int = 40) -> str:
-        return "\n".join(self.log.read_text(errors="replace").splitlines()[-n:])
-
-    def alive(self) -> bool:
-        return self.p.poll() is None
-
-    def stop(self, sig=signal.SIGTERM, timeout: float = 15.0) -> int:
-        if self.p.poll() is None:
-            self.p.send_signal(sig)
-            try:
-                self.p.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.p.kill()
-                self.p.wait()
-        self._f.close()
-        return self.p.returncode
 
 
 class Stack:

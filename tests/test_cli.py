@@ -59,9 +59,11 @@ def test_bad_config_names_file_and_field(tmp_path):
     assert str(path) in out.stderr and "collision.paddin" in out.stderr and "padding" in out.stderr
 
 
-def test_demo_says_it_is_not_built_yet():
-    out = replanner("demo")
-    assert out.returncode == 2 and "not built yet" in out.stderr
+def test_demo_bad_flags_say_what_to_change():
+    out = replanner("demo", "--policy", "yolo")
+    assert out.returncode == 2 and "--policy must be one of replan, stop-and-wait, none" in out.stderr
+    out = replanner("demo", "--config", "panda", "--cycles", "1")  # the panda profile has no bins
+    assert out.returncode == 2 and "sim.task.bins names 'bin_a', which is not in scene:" in out.stderr
 
 
 def test_bench_perception_json():

@@ -212,6 +212,33 @@ def test_brake_then_wait_and_resume_after_the_obstacle_leaves(make_sim):
     assert ("HOLDING", "MONITORING", "resume") in edges(sim)
 
 
+def test_stop_and_wait_brakes_at_once_then_plans_from_rest(make_sim):
+    sim = make_sim(reaction="stop_and_wait", hold_timeout=20.0, hold_replan_interval=0.5)
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    wait_state(sim, State.MONITORING)
+    _drop_on_path(sim, after=0.3, where=0.7)  # the box the replan policy goes around
+    wait_state(sim, State.HOLDING, timeout=5.0)
+    e = edges(sim)
+    assert ("MONITORING", "HOLDING", "brake_and_hold") in e and not any("PENDING" in t[1] for t in e), e
+    wait_for(lambda: np.abs(sim.driver.state().velocity).max() < 1e-9, 3.0, "the arm at rest")
+    res = h.wait(20)
+    assert res.status == GoalStatus.SUCCEEDED, (res, e)
+    assert ("HOLDING", "MONITORING", "start_motion") in edges(sim)  # a new path from rest, around the box
+    assert np.linalg.norm(hand_at(sim, sim.driver.state().position) - hand_at(sim, B)) < 0.01
+
+
+def test_reaction_none_never_looks_again(make_sim):
+    sim = make_sim(reaction="none")
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    wait_state(sim, State.MONITORING)
+    _drop_on_path(sim, after=0.3, where=0.7)
+    res = h.wait(20)
+    assert res.status == GoalStatus.SUCCEEDED  # straight through the box: what the demo's baseline shows
+    assert edges(sim)[-1] == ("MONITORING", "WAITING", "succeeded") and len(edges(sim)) == 6
+
+
 def test_cancel_brakes_and_reports(make_sim):
     sim = make_sim()
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED

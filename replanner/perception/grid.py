@@ -60,6 +60,11 @@ class LogOddsGrid:
             self.active = self.active[~old]
         return int(old.sum())
 
+    def forget(self, flat: np.ndarray) -> None:
+        """Drop these voxels (e.g. inside an object the world now knows): unknown again."""
+        self.logodds[flat] = 0.0
+        self.active = np.setdiff1d(self.active, flat, assume_unique=True)
+
     def clear(self) -> None:
         self.logodds[self.active] = 0.0
         self.active = np.zeros(0, dtype=np.int64)

@@ -109,6 +109,7 @@ class Perception:
         static = None if sf.static_objects_padding is None else sf.static_objects_padding + 2 * cfg.resolution
         self._shadow_filter = SelfFilter(robot, sf.padding, static) if sf.enabled else None
         self._broadphase_cell = broadphase_cell
+        self._filtered_version = -1
 
     @property
     def frames_to_clear(self) -> int:
@@ -278,6 +279,12 @@ class Perception:
         hit_now = np.union1d(hits, shadow) if len(shadow) else hits
         misses = self._seen_through(sensor, T, pts, ok, frame.organized, depth, hit_now)
         self.map.update(hits, misses, stamp, shadow)
+        if self.self_filter is not None and snapshot.version != self._filtered_version and len(self.map.active):
+            # the scene changed (an object added, moved, attached): what is now known is no obstacle
+            self._filtered_version = snapshot.version
+            known = ~self.self_filter.keep_mask(self.grid.centers(self.map.active), q, snapshot)
+            if known.any():
+                self.map.forget(self.map.active[known])
         rep.decayed = self.map.decay(stamp)
         rep.hits, rep.misses = len(hits), len(misses)
         lap("occupancy")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -10,9 +11,10 @@ import numpy as np
 
 from ..config import ReplannerConfig
 from ..errors import ConfigError, InvalidInputError
-from ..geometry import Shape
+from ..geometry import Box, Shape
 from ..perception import CameraModel, pose_from_config
 from ..robot import RobotModel
+from ..transforms import make_transform
 from ..transport import messages as m
 from ..transport.keys import Keys
 from .camera import PyBulletDepthCamera
@@ -30,10 +32,19 @@ class CloudPublisher:
         static: (name, shape, pose) objects present in the simulated room.
         rate_hz: frames per second per camera (rendering 320x240 takes ~40 ms on one core).
         robot: a loaded model of cfg.robot (loaded here if not given).
+        mirror_sim: also show the operator and the part where `replanner sim` says they are (`sim/bodies`).
+        seed: seeds the depth noise (`sim.noise`).
     """
 
     def __init__(
-        self, cfg: ReplannerConfig, session, static=(), rate_hz: float = 10.0, robot: RobotModel | None = None
+        self,
+        cfg: ReplannerConfig,
+        session,
+        static=(),
+        rate_hz: float = 10.0,
+        robot: RobotModel | None = None,
+        mirror_sim: bool = False,
+        seed: int = 0,
     ):
         if cfg.perception is None or not cfg.perception.sensors:
             raise ConfigError("the config has no perception.sensors: there is no camera to simulate")
@@ -49,6 +60,16 @@ class CloudPublisher:
             for s in cfg.perception.sensors
         ]
         self.frames = 0
+        self.noise = cfg.sim.noise
+        self.rng = np.random.default_rng(seed)
+        self.mirror_sim = mirror_sim
+        self._bodies = None
+        if mirror_sim:
+            from .physics import create_capsule
+
+            oc = cfg.sim.operator
+            self._op = create_capsule(self.scene.client, oc.arm_radius, oc.arm_length)
+            self._part = self.scene.add("part", Box(tuple(cfg.sim.task.part_size)), make_transform((0, 0, -5.0)))
         self._js: tuple[float, np.ndarray] | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -71,6 +92,11 @@ class CloudPublisher:
     def start(self) -> CloudPublisher:
         self._pubs = {name: self.session.declare_publisher(self.keys.cloud(name)) for name, _ in self.cameras}
         self._sub = self.session.declare_subscriber(self.keys.joint_states, self._on_joint_state)
+        self._sub_bodies = None
+        if self.mirror_sim:
+            from .physics import sim_keys
+
+            self._sub_bodies = self.session.declare_subscriber(sim_keys(self.keys)["bodies"], self._on_bodies)
         self._thread = threading.Thread(target=self._loop, name="cloud-publisher", daemon=True)
         self._thread.start()
         return self
@@ -80,6 +106,8 @@ class CloudPublisher:
         if self._thread is not None:
             self._thread.join(timeout=3.0)
         self._sub.undeclare()
+        if self._sub_bodies is not None:
+            self._sub_bodies.undeclare()
         for p in self._pubs.values():
             p.undeclare()
         with self._lock:
@@ -93,6 +121,34 @@ class CloudPublisher:
             return
         self._js = (stamp, q)
 
+    def _on_bodies(self, sample) -> None:
+        try:
+            msg = json.loads(sample.payload.to_bytes())
+            self._bodies = (msg.get("operator"), msg.get("part"))
+        except (ValueError, AttributeError) as err:
+            log.warning("sim bodies ignored: %s", err)
+
+    def _apply_bodies(self) -> None:
+        from .physics import pose_from_list, set_pose
+
+        if self._bodies is None:
+            return
+        op, part = self._bodies
+        set_pose(self.scene.client, self._op, pose_from_list(op))
+        set_pose(self.scene.client, self._part, pose_from_list(part))
+
+    def _depth_noise(self, depth: np.ndarray) -> np.ndarray:
+        """Kinect-like: range-dependent noise, missing returns, stray points."""
+        nz = self.noise
+        if nz.depth_sigma > 0:
+            depth = depth + self.rng.normal(0.0, 1.0, depth.shape).astype(np.float32) * nz.depth_sigma * depth**2
+        if nz.dropout > 0:
+            depth[self.rng.random(depth.shape) < nz.dropout] = np.nan
+        if nz.outliers > 0:
+            stray = self.rng.random(depth.shape) < nz.outliers
+            depth[stray] = self.rng.uniform(0.3, 4.0, int(stray.sum())).astype(np.float32)
+        return depth
+
     def _loop(self) -> None:
         period = 1.0 / self.rate_hz
         next_t = time.monotonic()
@@ -104,8 +160,11 @@ class CloudPublisher:
                 for name, cam in self.cameras:
                     with self._lock:
                         self.scene.set_q(js[1])
-                        pts = cam.cloud()
+                        if self.mirror_sim:
+                            self._apply_bodies()
+                        depth = cam.depth()
                     c = cam.camera
+                    pts = c.depth_to_points(self._depth_noise(depth))
                     # stamped with the joint state it was rendered at: the self-filter sees the same arm
                     self._pubs[name].put(m.encode_cloud(js[0], pts, name, c.width, c.height))
                     self.frames += 1
