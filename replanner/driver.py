@@ -134,6 +134,14 @@ class SampledTrajectory:
         if len(self.times) < 1 or self.q.shape != self.qd.shape or self.q.shape != self.qdd.shape:
             raise ValueError("times, q, qd and qdd must describe the same points")
 
+    @classmethod
+    def from_message(cls, data: bytes, joint_names) -> tuple[float, SampledTrajectory]:
+        """(start [s], trajectory) of a JointTrajectory CDR message; raises InvalidInputError."""
+        from .transport.messages import decode_trajectory
+
+        start, t, q, qd, qdd = decode_trajectory(data, joint_names)
+        return start, cls(t, q, qd, qdd)
+
     @property
     def duration(self) -> float:
         return float(self.times[-1])

@@ -46,12 +46,12 @@ class KinematicRobotNode:
 
     def _on_trajectory(self, sample) -> None:
         try:
-            start, t, q, qd, qdd = m.decode_trajectory(sample.payload.to_bytes(), self.robot.joint_names)
+            start, traj = SampledTrajectory.from_message(sample.payload.to_bytes(), self.robot.joint_names)
         except InvalidInputError as err:
             self.rejected += 1
             log.warning("trajectory rejected: %s", err)
             return
-        self.driver.execute(SampledTrajectory(t, q, qd, qdd), start)
+        self.driver.execute(traj, start)
 
 
 def run(cfg: ReplannerConfig, conf: zenoh.Config, q0=None) -> None:

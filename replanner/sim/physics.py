@@ -24,7 +24,7 @@ from ..driver import SampledTrajectory, Timeline
 from ..errors import InvalidInputError
 from ..geometry import Box
 from ..robot import RobotModel
-from ..transforms import make_transform, matrix_to_quat, quat_to_matrix
+from ..transforms import make_transform, matrix_to_quat
 from ..transport import messages as m
 from ..transport.keys import Keys
 from ..world import scene_from_config
@@ -186,7 +186,6 @@ class PhysicsSim:
         self.qd = np.zeros_like(q0)
         self.on_path = False
         self.contacts: dict[str, float] = {}  # object -> deepest penetration in the current episode
-        self.min_clearance = math.inf
         self.steps = 0
         self.rejected = 0
 
@@ -246,12 +245,12 @@ class PhysicsSim:
     # ------------------------------------------------------------------ inputs (callbacks: never block)
     def _on_trajectory(self, sample) -> None:
         try:
-            start, t, q, qd, qdd = m.decode_trajectory(sample.payload.to_bytes(), self.robot.joint_names)
+            start, traj = SampledTrajectory.from_message(sample.payload.to_bytes(), self.robot.joint_names)
         except InvalidInputError as err:
             self.rejected += 1
             log.warning("trajectory rejected: %s", err)
             return
-        self.timeline.add(SampledTrajectory(t, q, qd, qdd), start)
+        self.timeline.add(traj, start)
 
     def _enqueue(self, name: str):
         def callback(query) -> None:
@@ -377,8 +376,6 @@ class PhysicsSim:
             self.contacts[name] = min(self.contacts.get(name, 0.0), depth)
         for name in [n for n in self.contacts if n not in touching]:
             self.event("contact_end", t, object=name, deepest=round(self.contacts.pop(name), 4))
-        if clearance < math.inf:
-            self.min_clearance = min(self.min_clearance, clearance)
         return clearance
 
     def _path_truth(self, t: float) -> None:
@@ -411,12 +408,7 @@ class PhysicsSim:
             if t >= op.until:
                 self._choose_target(t)
         elif op.phase == "in":
-            d = op.target - op.tip
-            dist = float(np.linalg.norm(d))
-            nxt = op.target if dist <= step else op.tip + d / dist * step
-            if self._keeps_off(nxt, op):
-                op.tip = nxt
-            if dist <= step:
+            if self._move_hand(op.target, step):
                 op.phase, op.until = "stay", t + op.uniform(oc.linger)
                 self.event("operator_arrived", t, intrusion=op.count, aimed=op.aimed, at=op.target.round(3).tolist())
         elif op.phase == "stay":
@@ -424,30 +416,30 @@ class PhysicsSim:
                 op.phase = "out"
                 self.event("operator_leaving", t, intrusion=op.count)
         elif op.phase == "out":
-            d = op.start - op.tip
-            dist = float(np.linalg.norm(d))
-            nxt = op.start if dist <= step else op.tip + d / dist * step
-            if self._keeps_off(nxt, op):
-                op.tip = nxt
-            if dist <= step:
+            if self._move_hand(op.start, step):
                 op.tip = None
                 op.phase, op.until = "idle", t + op.uniform(oc.interval)
                 self.event("operator_left", t, intrusion=op.count)
         set_pose(self.client, self.op_body, op.pose())
 
-    def _keeps_off(self, tip: np.ndarray, op: Operator) -> bool:
-        """A person does not push into a robot: the next hand step must stay clear of where the arm is now."""
-        set_pose(self.client, self.op_body, capsule_pose(tip, op.direction(), self.sc.operator.arm_length))
-        pts = pb.getClosestPoints(self.scene.body, self.op_body, 0.01, physicsClientId=self.client)
-        # only a hand moving closer is held back: leaving or already inside, it goes on
-        if not pts:
-            return True
-        old = op.pose()
-        set_pose(self.client, self.op_body, old)
-        before = pb.getClosestPoints(self.scene.body, self.op_body, 0.5, physicsClientId=self.client)
-        now_d = min(p[8] for p in pts)
-        prev_d = min((p[8] for p in before), default=1.0)
-        return now_d >= prev_d
+    def _move_hand(self, goal: np.ndarray, step: float) -> bool:
+        """One step of the hand towards `goal` unless it would push into the arm; True once it is there."""
+        op = self.op
+        d = goal - op.tip
+        dist = float(np.linalg.norm(d))
+        nxt = goal if dist <= step else op.tip + d / dist * step
+        if self._keeps_off(nxt):
+            op.tip = nxt
+        return bool(np.array_equal(op.tip, goal))
+
+    def _keeps_off(self, tip: np.ndarray) -> bool:
+        """A person does not push into a robot: a step within 1 cm of the arm must not bring the hand closer."""
+        c, robot, body = self.client, self.scene.body, self.op_body
+        before = pb.getClosestPoints(robot, body, 0.5, physicsClientId=c)  # the capsule is where the hand is now
+        set_pose(c, body, capsule_pose(tip, self.op.direction(), self.sc.operator.arm_length))
+        after = pb.getClosestPoints(robot, body, 0.01, physicsClientId=c)
+        # leaving, or already touching, it goes on: only moving closer is held back
+        return not after or min(p[8] for p in after) >= min((p[8] for p in before), default=1.0)
 
     def _choose_target(self, t: float) -> None:
         op, oc = self.op, self.sc.operator
@@ -578,9 +570,8 @@ class PhysicsSim:
             hits = pb.rayTest([p[0], p[1], bottom - 1e-4], [p[0], p[1], bottom - 1.0], physicsClientId=self.client)
             below = {v: k for k, v in self.static.items()}.get(hits[0][0])
             drop = (bottom - 1e-4 - hits[0][3][2]) if hits[0][0] >= 0 else 0.0
-            R = quat_to_matrix(matrix_to_quat(self.part_pose[:3, :3]))
-            self.part_pose = make_transform((p[0], p[1], p[2] - drop + 0.0))
-            self.part_pose[:3, :3] = R
+            self.part_pose = self.part_pose.copy()
+            self.part_pose[2, 3] -= drop
             set_pose(self.client, self.part, self.part_pose)
             prev, self.part_in = self.part_in, below
             self.event("placed", t, on=below, picked_from=prev, drop=round(drop, 4))
