@@ -36,12 +36,16 @@ class Contact:
     kind: str  # "world" (static object), "octree", "self", "limits"
     body: str
     other: str
+    near: tuple[float, float, float] | None = None  # world point of an octree contact (to find the voxels)
 
     def __str__(self) -> str:
         if self.kind == "limits":
             return f"joint {self.body} is outside its limits"
-        what = {"world": "object", "octree": "the occupancy map", "self": "link"}[self.kind]
-        return f"{self.body} collides with {what}{'' if self.kind == 'octree' else ' ' + repr(self.other)}"
+        if self.kind == "octree":
+            where = "" if self.near is None else " near ({:.3f}, {:.3f}, {:.3f})".format(*self.near)
+            return f"{self.body} collides with the occupancy map{where}"
+        what = {"world": "object", "self": "link"}[self.kind]
+        return f"{self.body} collides with {what} {self.other!r}"
 
 
 @dataclass(frozen=True)
@@ -276,6 +280,7 @@ class CollisionChecker:
         self._local = threading.local()
         self._octree_obj: tuple[object, fcl.CollisionObject] | None = None
         self._request = fcl.CollisionRequest()
+        self._contact_request = fcl.CollisionRequest(num_max_contacts=1, enable_contact=True)
         self._dist_request = fcl.DistanceRequest(enable_nearest_points=True, enable_signed_distance=True)
 
     @classmethod
@@ -385,8 +390,9 @@ class CollisionChecker:
         bodies = scene.bodies
         for kind, a, b in tests:
             if kind == 0:
-                if collide(place(objs.map_, placed_map, a), octree, req):
-                    return Contact("octree", bodies[a].name, OCTREE)
+                body = place(objs.map_, placed_map, a)
+                if collide(body, octree, req):
+                    return Contact("octree", bodies[a].name, OCTREE, self._contact_point(body, octree))
             elif kind == 1:
                 name, obj = scene.obstacles[b]
                 if collide(place(objs.env, placed_env, a), obj, req):
@@ -394,6 +400,11 @@ class CollisionChecker:
             elif collide(place(objs.self_, placed_self, a), place(objs.self_, placed_self, b), req):
                 return Contact("self", bodies[a].name, bodies[b].name)
         return None
+
+    def _contact_point(self, body, octree) -> tuple[float, float, float] | None:
+        res = fcl.CollisionResult()
+        fcl.collide(body, octree, self._contact_request, res)
+        return tuple(float(v) for v in res.contacts[0].pos) if res.contacts else None
 
     def _limits_contact(self, q: np.ndarray) -> Contact | None:
         lim = self.robot.limits

@@ -357,10 +357,16 @@ class OperatorConfig(_Section):
     interval: Range = Field((2.0, 5.0), description="Pause between the end of one intrusion and the next [s].")
     in_path_probability: float = Field(0.75, ge=0.0, le=1.0, description="Share of intrusions aimed at the path.")
     lead_time: Range = Field((0.7, 1.4), description="An aimed hand goes where the arm will be this much later [s].")
+    aim_patience: float = Field(
+        3.0, ge=0.0, description="An aimed intrusion waits this long for a motion it can meet, then goes anywhere [s]."
+    )
     linger: Range = Field((1.0, 2.5), description="The hand stays this long [s].")
     speed: float = Field(1.0, gt=0.0, le=3.0, description="Hand speed in and out [m/s].")
     arm_radius: float = Field(0.05, gt=0.0, le=0.3, description="Forearm capsule radius [m].")
     arm_length: float = Field(0.35, gt=0.0, le=1.5, description="Forearm capsule length [m].")
+    stop_distance: float = Field(
+        0.06, ge=0.0, le=0.5, description="The hand stops rather than come this close to the arm by itself [m]."
+    )
     keep_off_arm: float = Field(
         0.12,
         ge=0.0,

@@ -6,7 +6,10 @@ snapshot keeps a consistent scene while another thread edits the world or swaps 
 
 from __future__ import annotations
 
+import math
 import threading
+import time
+from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
@@ -71,11 +74,24 @@ class World:
         self.robot = robot
         self._lock = threading.Lock()
         self._snap = WorldSnapshot(MappingProxyType({}), MappingProxyType({}), None, 0)
+        self._history: deque[tuple[float, WorldSnapshot]] = deque([(-math.inf, self._snap)], maxlen=64)
 
     # ------------------------------------------------------------------ reading
     def snapshot(self) -> WorldSnapshot:
         """The current state; never changes after it is returned."""
         return self._snap
+
+    def scene_at(self, stamp: float) -> WorldSnapshot:
+        """The objects and attachments as they were at `stamp` (time.time() clock; the oldest kept if earlier).
+
+        A camera frame is filtered with the scene of the moment it was taken: a part let go after the frame
+        was rendered is still the robot's in it.
+        """
+        hist = list(self._history)
+        for t, snap in reversed(hist):
+            if t <= stamp:
+                return snap
+        return hist[0][1]
 
     @property
     def objects(self) -> MappingProxyType:
@@ -102,6 +118,8 @@ class World:
             s.occupancy if occupancy is ... else occupancy,
             s.version + 1 if bump else s.version,
         )
+        if bump:  # without the map: the history must not keep old maps alive
+            self._history.append((time.time(), replace(self._snap, occupancy=None)))
 
     def _check_new_name(self, name: str) -> None:
         if not isinstance(name, str) or not name or len(name) > 128:

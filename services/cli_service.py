@@ -15,7 +15,7 @@ CONFIG_HELP = "Robot config: a YAML file, or the name of a shipped profile (pand
 MODE_HELP = "Zenoh mode: peer (default), client or router."
 CONNECT_HELP = "Zenoh endpoint to connect to, e.g. tcp/10.0.0.2:7447 (repeatable)."
 LISTEN_HELP = "Zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7448 (repeatable)."
-ZCONF_HELP = "A Zenoh JSON5 config file (the flags above still override it)."
+ZCONF_HELP = "A Zenoh JSON5 config file, or a shipped one: client, router (the flags above still override it)."
 
 scene_app = typer.Typer(
     help="Static objects of the service's world: list, add, move, remove, attach, detach.", no_args_is_help=True
@@ -104,6 +104,34 @@ def register(app: typer.Typer) -> None:
             serve_mod.run(cfg, _zenoh(cfg, "service", mode, connect, listen, zenoh_config))
         except ReplannerError as err:
             _fail(err)
+
+    @app.command("router")
+    def router(
+        listen: list[str] | None = typer.Option(None, "--listen", "-l", help=LISTEN_HELP),
+        zenoh_config: str = typer.Option("router", "--zenoh-config", help=ZCONF_HELP),
+    ) -> None:
+        """A Zenoh router in this Python process (where there is no zenohd): the other processes connect to
+        it in client mode, e.g. `replanner serve -c demo --zenoh-config client -e tcp/127.0.0.1:7447`."""
+        import signal
+        import threading
+
+        from replanner.config import TransportConfig
+        from replanner.transport.session import make_config, open_session
+
+        try:
+            conf = make_config(TransportConfig(), "service", "router", (), listen or (), zenoh_config)
+            session = open_session(conf)
+        except ReplannerError as err:
+            _fail(err)
+        stop = threading.Event()
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+        print(f"replanner: Zenoh router listening on {conf.get_json('listen/endpoints')} (Ctrl-C stops)", flush=True)
+        try:
+            while not stop.wait(0.5):
+                pass
+        except KeyboardInterrupt:
+            pass
+        session.close()
 
     @app.command("robot")
     def robot(

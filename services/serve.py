@@ -101,6 +101,7 @@ class Service:
             "scene_attach",
             "scene_detach",
             "scene_list",
+            "map_get",
             "map_clear",
         ):
             self._decl.append(s.declare_queryable(getattr(k, name), self._enqueue_query(name)))
@@ -361,6 +362,16 @@ class Service:
             for a in snap.attachments.values()
         ]
         return {"objects": objects, "attachments": attached}
+
+    def _q_map_get(self, payload):
+        req = m.parse_json(m.MapGet, payload or b"{}", "map/get")  # no payload: the whole map
+        occ = self.world.snapshot().occupancy
+        if occ is None or not len(occ):
+            return {"resolution": self.cfg.perception.resolution if self.perception else None, "count": 0, "voxels": []}
+        c = occ.centers
+        if req.min is not None:
+            c = c[np.all((c >= req.min) & (c <= req.max), axis=1)]
+        return {"resolution": occ.resolution, "stamp": occ.stamp, "count": len(c), "voxels": c.round(4).tolist()}
 
     def _q_map_clear(self, payload):
         m.parse_json(m.Empty, payload, "map/clear")

@@ -291,6 +291,20 @@ def test_clearance_reports_the_closest_link_and_the_octree(panda):
     assert 0.0 < c.distance < 0.15
 
 
+def test_octree_contact_says_where_the_voxels_are(panda):
+    from replanner.occupancy import OccupancyMap
+
+    world = World(panda)
+    q = panda.home
+    hand = panda.link_pose(q, "panda_hand")[:3, 3]
+    blob = hand + np.random.default_rng(1).uniform(-0.01, 0.01, (50, 3))
+    world.set_occupancy(OccupancyMap.from_points(blob, 0.01))
+    contact = CollisionChecker(panda, world, padding=0.0).check(q)
+    assert contact is not None and contact.kind == "octree"
+    assert np.linalg.norm(np.array(contact.near) - hand) < 0.05
+    assert "near (" in str(contact)
+
+
 def test_clearance_pruning_equals_brute_force(panda):
     """The octree distance skips bodies by a lower bound; the answer must equal FCL over every body."""
     world = World(panda)

@@ -332,6 +332,8 @@ REQUESTS = [
     ("detach what is not attached", "scene/detach", {"name": "table"}, "table"),
     ("state with garbage", "state", b"?", "not valid JSON"),
     ("map clear with a field", "map/clear", {"all": True}, "all: unknown field"),
+    ("map box upside down", "map/get", {"min": [1, 0, 0], "max": [0, 1, 1]}, "must be <= max"),
+    ("map box half given", "map/get", {"min": [0, 0, 0]}, "give both min and max"),
 ]
 
 STREAMS = [

@@ -21,7 +21,7 @@ def test_keys_are_versioned_and_validated():
     assert k.goal == "lab/cell3/@v1/panda/goal"
     assert k.scene_add == "lab/cell3/@v1/panda/scene/add"
     assert k.cloud("front") == "lab/cell3/@v1/panda/clouds/front"
-    assert len(KEYS) == 18
+    assert len(KEYS) == 19
     for bad in ("pan da", "a/*", "", "x/"):
         with pytest.raises(InvalidInputError, match="letters, digits"):
             Keys(bad)
@@ -111,3 +111,14 @@ def test_json_requests_name_the_field():
     with pytest.raises(m.DecodeError, match="velocity_scale"):
         m.parse_json(m.GoalRequest, b'{"id": "a", "joints": [0], "velocity_scale": 0}', "goal")
     assert m.parse_json(m.Empty, b"", "state") == m.Empty()
+
+
+def test_fast_joint_state_encoder_writes_rosbags_bytes():
+    """The 250 Hz encoder patches a rosbags-made template: the bytes must be exactly rosbags' own."""
+    rng = np.random.default_rng(3)
+    for n in (1, 7, 9):
+        names = [f"joint_{i}" for i in range(n)]
+        for _ in range(50):
+            t, p, v = rng.uniform(0, 2e9), rng.normal(size=n), rng.normal(size=n)
+            assert m.encode_joint_state(t, names, p, v) == m._encode_joint_state(t, names, p, v)
+            assert m.encode_joint_state(t, names, p, frame="base") == m._encode_joint_state(t, names, p, None, "base")

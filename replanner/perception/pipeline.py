@@ -217,6 +217,7 @@ class Perception:
         stamp = float(frame.stamp)
         q = self._joint_state_for(sensor, stamp) if self.self_filter is not None else None
         snapshot = self.world.snapshot()
+        then = self.world.scene_at(stamp)  # a frame in flight while a part was let go still shows it carried
         cfg = self.cfg
         rep = FrameReport(sensor.cfg.name, stamp)
         rep.counts["input"] = len(pts)
@@ -264,13 +265,13 @@ class Perception:
             rep.counts["outliers"] = len(flat)
             lap("outliers")
             if self.self_filter is not None:
-                keep = self.self_filter.keep_mask(work, q, snapshot)
+                keep = self._known_mask(self.self_filter, work, q, snapshot, then)
                 flat, work = flat[keep], work[keep]
             if not cfg.downsample:
                 flat = self.grid.unique(flat)
             rep.counts["self_filter"] = len(flat)
             lap("self_filter")
-            shadow = self._shadow(flat, T[:3, 3], q, snapshot)
+            shadow = self._shadow(flat, T[:3, 3], q, snapshot, then)
             rep.counts["shadow"] = len(shadow)
             lap("shadow")
         else:
@@ -295,7 +296,15 @@ class Perception:
         sensor.frames += 1
         return rep
 
-    def _shadow(self, surface: np.ndarray, origin: np.ndarray, q, snapshot) -> np.ndarray:
+    @staticmethod
+    def _known_mask(sf: SelfFilter, pts: np.ndarray, q, now, then) -> np.ndarray:
+        """Keep mask: neither the robot nor a known object, as the scene is now and as it was at the stamp."""
+        keep = sf.keep_mask(pts, q, now)
+        if then.version != now.version and keep.any():
+            keep[keep] = sf.keep_mask(pts[keep], q, then)
+        return keep
+
+    def _shadow(self, surface: np.ndarray, origin: np.ndarray, q, snapshot, then) -> np.ndarray:
         """Voxels just behind the observed surface voxels along the camera's rays (occluded, likely solid)."""
         depth = self.cfg.occupancy.shadow_depth
         if depth <= 0 or not len(surface):
@@ -312,7 +321,7 @@ class Perception:
             return np.zeros(0, dtype=np.int64)
         flat = self.grid.unique(self.grid.flat(pts))
         if self._shadow_filter is not None:  # a shadow never covers the robot or known objects
-            flat = flat[self._shadow_filter.keep_mask(self.grid.centers(flat), q, snapshot)]
+            flat = flat[self._known_mask(self._shadow_filter, self.grid.centers(flat), q, snapshot, then)]
         return flat
 
     def _outlier_mask(self, voxels: np.ndarray) -> np.ndarray:

@@ -63,14 +63,13 @@ class CloudPublisher:
         self.noise = cfg.sim.noise
         self.rng = np.random.default_rng(seed)
         self.mirror_sim = mirror_sim
-        self._bodies = None
         if mirror_sim:
             from .physics import create_capsule
 
             oc = cfg.sim.operator
             self._op = create_capsule(self.scene.client, oc.arm_radius, oc.arm_length)
             self._part = self.scene.add("part", Box(tuple(cfg.sim.task.part_size)), make_transform((0, 0, -5.0)))
-        self._js: tuple[float, np.ndarray] | None = None
+        self._js: tuple[float, np.ndarray, tuple | None] | None = None  # stamp, q, (operator, part)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -91,9 +90,11 @@ class CloudPublisher:
     # ------------------------------------------------------------------ running
     def start(self) -> CloudPublisher:
         self._pubs = {name: self.session.declare_publisher(self.keys.cloud(name)) for name, _ in self.cameras}
-        self._sub = self.session.declare_subscriber(self.keys.joint_states, self._on_joint_state)
+        self._sub = None
         self._sub_bodies = None
-        if self.mirror_sim:
+        if not self.mirror_sim:  # mirroring: the arm comes with the bodies, all of one instant
+            self._sub = self.session.declare_subscriber(self.keys.joint_states, self._on_joint_state)
+        else:
             from .physics import sim_keys
 
             self._sub_bodies = self.session.declare_subscriber(sim_keys(self.keys)["bodies"], self._on_bodies)
@@ -105,9 +106,9 @@ class CloudPublisher:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=3.0)
-        self._sub.undeclare()
-        if self._sub_bodies is not None:
-            self._sub_bodies.undeclare()
+        for sub in (self._sub, self._sub_bodies):
+            if sub is not None:
+                sub.undeclare()
         for p in self._pubs.values():
             p.undeclare()
         with self._lock:
@@ -119,21 +120,22 @@ class CloudPublisher:
         except InvalidInputError as err:
             log.warning("joint state ignored: %s", err)
             return
-        self._js = (stamp, q)
+        self._js = (stamp, q, None)
 
     def _on_bodies(self, sample) -> None:
         try:
             msg = json.loads(sample.payload.to_bytes())
-            self._bodies = (msg.get("operator"), msg.get("part"))
-        except (ValueError, AttributeError) as err:
+            q = np.asarray(msg["q"], float)
+            if q.shape != (self.robot.dof,):
+                raise ValueError(f"q has {q.size} values, the robot {self.robot.dof} joints")
+            self._js = (float(msg["stamp"]), q, (msg.get("operator"), msg.get("part")))
+        except (ValueError, KeyError, TypeError, AttributeError) as err:
             log.warning("sim bodies ignored: %s", err)
 
-    def _apply_bodies(self) -> None:
+    def _apply_bodies(self, bodies) -> None:
         from .physics import pose_from_list, set_pose
 
-        if self._bodies is None:
-            return
-        op, part = self._bodies
+        op, part = bodies
         set_pose(self.scene.client, self._op, pose_from_list(op))
         set_pose(self.scene.client, self._part, pose_from_list(part))
 
@@ -160,8 +162,8 @@ class CloudPublisher:
                 for name, cam in self.cameras:
                     with self._lock:
                         self.scene.set_q(js[1])
-                        if self.mirror_sim:
-                            self._apply_bodies()
+                        if js[2] is not None:
+                            self._apply_bodies(js[2])
                         depth = cam.depth()
                     c = cam.camera
                     pts = c.depth_to_points(self._depth_noise(depth))

@@ -32,6 +32,7 @@ from .scene import PyBulletScene
 
 log = logging.getLogger(__name__)
 
+OPERATOR_HZ = 100.0  # the hand moves in 1 cm steps at 1 m/s: each step costs two closest-point queries
 PARK = (0.0, 0.0, -5.0)  # where absent bodies wait: under the floor, out of every camera's view
 CONTACT_DEPTH = 0.001  # pybullet reports distances up to its 1 mm collision margin short: deeper counts
 
@@ -84,8 +85,8 @@ def pose_from_list(p) -> np.ndarray | None:
 class Operator:
     """A seeded script: pause, reach in (often to where the arm is about to be), linger, withdraw.
 
-    The hand never moves into the arm: it pauses while its next step would come within `keep_off_arm`
-    of where the arm is. Collisions are the arm's doing.
+    The hand never moves towards the arm once within `stop_distance` of it (it pauses), and it only sets
+    off on a way in that keeps `keep_off_arm` from the arm: contacts and close calls are the arm's doing.
     """
 
     def __init__(self, cfg: OperatorConfig, rng: np.random.Generator, t0: float):
@@ -96,6 +97,7 @@ class Operator:
         self.tip: np.ndarray | None = None
         self.start = self.target = None
         self.aimed = False
+        self.aim_deadline: float | None = None
         self.count = 0
 
     @property
@@ -270,7 +272,8 @@ class PhysicsSim:
             "js": max(1, round(sc.physics_hz / sc.joint_state_hz)),
             "truth": max(1, round(sc.physics_hz / sc.truth_rate_hz)),
             "path": max(1, round(sc.physics_hz / sc.path_check_hz)),
-            "bodies": max(1, round(sc.physics_hz / 30.0)),
+            "bodies": max(1, round(sc.physics_hz / 60.0)),
+            "operator": max(1, round(sc.physics_hz / OPERATOR_HZ)),
             "report": max(1, round(sc.physics_hz / 10.0)),
         }
         t0 = time.time()
@@ -281,7 +284,7 @@ class PhysicsSim:
             burst = 0
             while k <= due and burst < 50:  # fell behind (a busy machine): catch up, but keep answering
                 t = t0 + k * dt
-                self._step(t)
+                self._step(t, operate=self.op_on and k % every["operator"] == 0)
                 if k % every["js"] == 0:
                     self._publish_js(t)
                 if k % every["truth"] == 0:
@@ -310,7 +313,7 @@ class PhysicsSim:
             if delay > 0:
                 time.sleep(delay)
 
-    def _step(self, t: float) -> None:
+    def _step(self, t: float, operate: bool = False) -> None:
         c = self.client
         q_d, qd_d = self.timeline.state(t)
         pb.setJointMotorControlArray(
@@ -324,7 +327,7 @@ class PhysicsSim:
             forces=self.forces,
             physicsClientId=c,
         )
-        if self.op_on:
+        if operate:
             self._operate(t)
         pb.stepSimulation(physicsClientId=c)
         if self.grasped is not None:
@@ -338,41 +341,57 @@ class PhysicsSim:
         self.pub_js.put(m.encode_joint_state(t, self.robot.joint_names, self.q, self.qd))
 
     def _publish_bodies(self, t: float) -> None:
-        self.pub_bodies.put(
-            json.dumps({"stamp": t, "operator": pose_list(self.op.pose()), "part": pose_list(self.part_pose)})
-        )
+        # the arm too: cameras render one instant, or a carried part trails the hand into the map
+        states = pb.getJointStates(self.scene.body, self.joint_ids, physicsClientId=self.client)
+        msg = {
+            "stamp": t,
+            "q": [s[0] for s in states],
+            "operator": pose_list(self.op.pose()),
+            "part": pose_list(self.part_pose),
+        }
+        self.pub_bodies.put(json.dumps(msg))
 
     # ------------------------------------------------------------------ ground truth
     def _truth(self, t: float) -> float:
         """Contacts of the robot (and what it carries) with anything; returns the clearance to the operator."""
         c, robot = self.client, self.scene.body
-        touching: dict[str, float] = {}
+        touching: dict[str, tuple[float, str]] = {}  # object -> (depth, robot link or "part")
+
+        def touch(name: str, depth: float, who: str) -> None:
+            if name not in touching or depth < touching[name][0]:
+                touching[name] = (depth, who)
+
         for name, body in [*self.static.items(), ("part", self.part)]:
             if name == "part" and self.grasped is not None:
                 continue
             for pt in pb.getClosestPoints(robot, body, 0.0, physicsClientId=c):
                 link = self.link_name.get(pt[3], str(pt[3]))
                 if pt[8] < -CONTACT_DEPTH and (link, name) not in self.allowed:
-                    touching[name] = min(touching.get(name, 0.0), pt[8] + CONTACT_DEPTH)
+                    touch(name, pt[8] + CONTACT_DEPTH, link)
         clearance = math.inf
+        who = None
         if self.op.present:
             for pt in pb.getClosestPoints(robot, self.op_body, 1.0, physicsClientId=c):
-                clearance = min(clearance, pt[8] + CONTACT_DEPTH)
+                if pt[8] + CONTACT_DEPTH < clearance:
+                    clearance, who = pt[8] + CONTACT_DEPTH, self.link_name.get(pt[3], str(pt[3]))
             if self.grasped is not None:
                 for pt in pb.getClosestPoints(self.part, self.op_body, 1.0, physicsClientId=c):
-                    clearance = min(clearance, pt[8] + CONTACT_DEPTH)
+                    if pt[8] + CONTACT_DEPTH < clearance:
+                        clearance, who = pt[8] + CONTACT_DEPTH, "part"
             if clearance < 0:
-                touching["operator"] = clearance
+                touch("operator", clearance, who)
         if self.grasped is not None:
             for name, body in self.static.items():
                 if name == self.part_in:
                     continue  # lifting off the bin it rested on
                 for pt in pb.getClosestPoints(self.part, body, 0.0, physicsClientId=c):
                     if pt[8] < -CONTACT_DEPTH:
-                        touching[name] = min(touching.get(name, 0.0), pt[8] + CONTACT_DEPTH)
-        for name, depth in touching.items():
+                        touch(name, pt[8] + CONTACT_DEPTH, "part")
+        for name, (depth, link) in touching.items():
             if name not in self.contacts:
-                self.event("contact", t, object=name, depth=round(depth, 4), carrying=self.grasped is not None)
+                self.event(
+                    "contact", t, object=name, depth=round(depth, 4), link=link, carrying=self.grasped is not None
+                )
             self.contacts[name] = min(self.contacts.get(name, 0.0), depth)
         for name in [n for n in self.contacts if n not in touching]:
             self.event("contact_end", t, object=name, deepest=round(self.contacts.pop(name), 4))
@@ -403,7 +422,7 @@ class PhysicsSim:
     # ------------------------------------------------------------------ the operator
     def _operate(self, t: float) -> None:
         op, oc = self.op, self.sc.operator
-        step = oc.speed / self.sc.physics_hz
+        step = oc.speed / OPERATOR_HZ
         if op.phase == "idle":
             if t >= op.until:
                 self._choose_target(t)
@@ -433,36 +452,25 @@ class PhysicsSim:
         return bool(np.array_equal(op.tip, goal))
 
     def _keeps_off(self, tip: np.ndarray) -> bool:
-        """A person does not push into a robot: a step within 1 cm of the arm must not bring the hand closer."""
-        c, robot, body = self.client, self.scene.body, self.op_body
+        """A person does not push into a robot: no step ends within `stop_distance` of the arm unless it leaves."""
+        c, robot, body, oc = self.client, self.scene.body, self.op_body, self.sc.operator
         before = pb.getClosestPoints(robot, body, 0.5, physicsClientId=c)  # the capsule is where the hand is now
-        set_pose(c, body, capsule_pose(tip, self.op.direction(), self.sc.operator.arm_length))
-        after = pb.getClosestPoints(robot, body, 0.01, physicsClientId=c)
-        # leaving, or already touching, it goes on: only moving closer is held back
+        set_pose(c, body, capsule_pose(tip, self.op.direction(), oc.arm_length))
+        after = pb.getClosestPoints(robot, body, oc.stop_distance, physicsClientId=c)
         return not after or min(p[8] for p in after) >= min((p[8] for p in before), default=1.0)
 
     def _choose_target(self, t: float) -> None:
         op, oc = self.op, self.sc.operator
         stand = np.asarray(oc.stand, float)
-        op.count += 1
-        op.aimed = bool(op.rng.random() < oc.in_path_probability)
-        target = None
-        seg = self.timeline.active(t)
-        moving = seg is not None and seg[0] + seg[1].duration > t + 0.5
-        if op.aimed and moving:
-            start, traj = seg
-            for _ in range(6):
-                lead = op.uniform(oc.lead_time)
-                # where the arm will be `lead` after the hand arrives (two passes: the reach depends on the target)
-                tt = t + lead
-                for _ in range(2):
-                    cand = self._link_point(self.timeline.state(tt)[0], op.rng)
-                    tt = t + float(np.linalg.norm(cand - stand)) / oc.speed + lead
-                if tt > start + traj.duration:
-                    continue
-                if self._corridor_clear(stand, cand, t):
-                    target = cand
-                    break
+        if op.aim_deadline is None:  # a new intrusion: aimed or not is rolled once
+            op.count += 1
+            op.aimed = bool(op.rng.random() < oc.in_path_probability)
+            op.aim_deadline = t + oc.aim_patience
+        target = self._aim(t, stand) if op.aimed else None
+        if target is None and op.aimed and t < op.aim_deadline:
+            op.until = t + 0.02  # wait for a motion the hand can meet
+            return
+        op.aim_deadline = None
         if target is None:
             op.aimed = False
             for _ in range(10):
@@ -479,6 +487,24 @@ class PhysicsSim:
         op.tip = stand.copy()
         op.phase = "in"
         self.event("operator_entering", t, intrusion=op.count, aimed=op.aimed, target=target.round(3).tolist())
+
+    def _aim(self, t: float, stand: np.ndarray) -> np.ndarray | None:
+        """A point on the arm where it will be `lead_time` after the hand gets there, if the motion lasts."""
+        op, oc = self.op, self.sc.operator
+        seg = self.timeline.active(t)
+        if seg is None or seg[0] + seg[1].duration < t + 0.5:
+            return None
+        start, traj = seg
+        for _ in range(6):
+            lead = op.uniform(oc.lead_time)
+            # two passes: the time to get there depends on the target
+            tt = t + lead
+            for _ in range(2):
+                cand = self._link_point(self.timeline.state(tt)[0], op.rng)
+                tt = t + float(np.linalg.norm(cand - stand)) / oc.speed + lead
+            if tt <= start + traj.duration and self._corridor_clear(stand, cand, t):
+                return cand
+        return None
 
     def _link_point(self, q: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """A point on the arm at q: the hand or the wrist, where a reaching person meets it."""

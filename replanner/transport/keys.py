@@ -47,6 +47,7 @@ KEYS = {
     "scene_attach": "scene/attach",
     "scene_detach": "scene/detach",
     "scene_list": "scene/list",
+    "map_get": "map/get",
     "map_clear": "map/clear",
     "status": "status",
     "transitions": "transitions",

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import json
 import math
+import struct
 from functools import lru_cache
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..errors import InvalidInputError
 from ..geometry import Box, Cylinder, Mesh, Sphere
@@ -138,6 +139,24 @@ class SceneAttach(_Msg):
     support: list[str] = Field(default_factory=list, description="static objects it may touch until it left them")
 
 
+class MapGet(_Msg):
+    min: Vec3 | None = Field(None, description="corner of a box [m]: only voxels inside it are returned")
+    max: Vec3 | None = None
+
+    @field_validator("min", "max")
+    @classmethod
+    def _finite_corner(cls, v, info):
+        return None if v is None else _finite(v, info.field_name)
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        if (self.min is None) != (self.max is None):
+            raise ValueError("give both min and max (a box), or neither (the whole map)")
+        if self.min is not None and any(a > b for a, b in zip(self.min, self.max)):
+            raise ValueError(f"min {self.min} must be <= max {self.max} on every axis")
+        return self
+
+
 class Empty(_Msg):
     pass
 
@@ -218,6 +237,34 @@ def _decode(data: bytes, typename: str, what: str):
 
 
 def encode_joint_state(stamp: float, names, position, velocity=None, frame: str = "") -> bytes:
+    """CDR bytes of a sensor_msgs/JointState; the same bytes as rosbags' serializer, ~20x faster (250 Hz streams)."""
+    pos = np.asarray(position, np.float64)
+    vel = None if velocity is None else np.asarray(velocity, np.float64)
+    names = tuple(names)
+    if pos.shape != (len(names),) or (vel is not None and vel.shape != pos.shape):
+        return _encode_joint_state(stamp, names, pos, vel, frame)  # rosbags says what is wrong
+    blob, pos_at, vel_at = _joint_state_layout(names, frame, vel is not None)
+    out = bytearray(blob)
+    sec = int(math.floor(stamp))
+    struct.pack_into("<iI", out, 4, sec, int(round((stamp - sec) * 1e9)) % 1_000_000_000)
+    out[pos_at : pos_at + 8 * len(names)] = pos.astype("<f8").tobytes()
+    if vel is not None:
+        out[vel_at : vel_at + 8 * len(names)] = vel.astype("<f8").tobytes()
+    return bytes(out)
+
+
+@lru_cache(maxsize=16)
+def _joint_state_layout(names: tuple[str, ...], frame: str, with_velocity: bool) -> tuple[bytes, int, int]:
+    """rosbags' bytes for these names, and where the position and velocity arrays start in them."""
+    n = len(names)
+    mark_p, mark_v = np.full(n, 1.25e-300), np.full(n, -3.5e-300)  # values no header byte run can imitate
+    blob = _encode_joint_state(0.0, names, mark_p, mark_v if with_velocity else None, frame)
+    if blob[:4] != b"\x00\x01\x00\x00":
+        raise RuntimeError("rosbags no longer writes little-endian CDR: the fast JointState encoder needs updating")
+    return blob, blob.find(mark_p.astype("<f8").tobytes()), blob.find(mark_v.astype("<f8").tobytes())
+
+
+def _encode_joint_state(stamp: float, names, position, velocity=None, frame: str = "") -> bytes:
     ts = typestore()
     msg = ts.types[JOINT_STATE](
         header=_header(stamp, frame),

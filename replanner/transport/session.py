@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import socket
+from pathlib import Path
 from typing import Literal
 
 import zenoh
@@ -28,6 +29,7 @@ def make_config(
     if mode is not None and mode not in ("peer", "client", "router"):
         raise ConfigError(f"--mode must be peer, client or router, got {mode!r}")
     if zenoh_file:
+        zenoh_file = str(zenoh_config_file(zenoh_file))
         try:
             conf = zenoh.Config.from_file(zenoh_file)
         except Exception as err:
@@ -58,6 +60,20 @@ def make_config(
         conf.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))  # loopback only, any port
     conf.insert_json5("scouting/multicast/enabled", json.dumps(transport.multicast_scouting))
     return conf
+
+
+def zenoh_config_file(name: str) -> Path:
+    """A JSON5 path, or the name of a shipped Zenoh config (configs/zenoh/<name>.json5: router, client)."""
+    p = Path(name)
+    if p.exists():
+        return p
+    import replanner_configs
+
+    shipped = Path(replanner_configs.__file__).parent / "zenoh"
+    if (shipped / f"{name}.json5").exists():
+        return shipped / f"{name}.json5"
+    names = ", ".join(sorted(f.stem for f in shipped.glob("*.json5")))
+    raise ConfigError(f"--zenoh-config {name!r}: no such file, and not a shipped Zenoh config ({names})", source=name)
 
 
 def free_port() -> int:
