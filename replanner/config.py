@@ -356,7 +356,18 @@ class OperatorConfig(_Section):
     first_after: float = Field(3.0, ge=0.0, description="First intrusion this long after the start [s].")
     interval: Range = Field((2.0, 5.0), description="Pause between the end of one intrusion and the next [s].")
     in_path_probability: float = Field(0.75, ge=0.0, le=1.0, description="Share of intrusions aimed at the path.")
-    lead_time: Range = Field((0.7, 1.4), description="An aimed hand goes where the arm will be this much later [s].")
+    lead_time: Range = Field(
+        (0.7, 1.4), description="An aimed hand arrives this long before the arm would come within stop_distance [s]."
+    )
+    goal_margin: float = Field(
+        0.15,
+        ge=0.0,
+        description="An aimed hand keeps this far from where the motion ends: no path avoids a hand on the goal [m].",
+    )
+    reach_region: tuple[Vec3, Vec3] = Field(
+        ((0.2, -0.6, 0.1), (0.7, -0.15, 0.5)),
+        description="Corners (min, max) of the box an unaimed hand reaches into [m, base frame].",
+    )
     aim_patience: float = Field(
         3.0, ge=0.0, description="An aimed intrusion waits this long for a motion it can meet, then goes anywhere [s]."
     )
@@ -372,6 +383,17 @@ class OperatorConfig(_Section):
         ge=0.0,
         description="Entries whose way in passes closer than this to the arm's current pose are not made [m].",
     )
+
+    @model_validator(mode="after")
+    def _ordered(self) -> OperatorConfig:
+        for name in ("interval", "lead_time", "linger"):
+            lo, hi = getattr(self, name)
+            if not 0.0 <= lo <= hi:
+                raise ValueError(f"{name} must be [min, max] with 0 <= min <= max, got [{lo}, {hi}]")
+        lo, hi = self.reach_region
+        if any(a >= b for a, b in zip(lo, hi, strict=True)):
+            raise ValueError(f"reach_region must be [[min x, y, z], [max x, y, z]] with min < max, got {[lo, hi]}")
+        return self
 
 
 class TaskConfig(_Section):

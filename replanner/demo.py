@@ -128,7 +128,10 @@ def compute_metrics(rec: Recording, *, safety_distance: float, bins: tuple[str, 
         "collisions_by_object": {
             o: sum(1 for c in contacts if c["object"] == o) for o in sorted({c["object"] for c in contacts})
         },
-        "deepest_penetration_m": min((c["depth"] for c in contacts), default=None),
+        # a contact's first sample is barely a touch: its deepest comes with its end
+        "deepest_penetration_m": min(
+            [c["depth"] for c in contacts] + [e["deepest"] for e in kinds("contact_end")], default=None
+        ),
         "min_clearance_m": round(min(clear), 4) if clear else None,
         "safety_distance_m": safety_distance,
         "intrusions": len(kinds("operator_entering")),

@@ -422,10 +422,13 @@ def _law_from(phases, duration: float, s_end: float) -> _Law:
 class Trajectory:
     """A timed, jerk-limited motion along a curve. Time runs from 0 to `duration` [s]."""
 
-    def __init__(self, curve: Curve, law: _Law, limits: _Limits, joint_names: Sequence[str] = ()):
+    def __init__(
+        self, curve: Curve, law: _Law, limits: _Limits, joint_names: Sequence[str] = (), nominal: _Limits | None = None
+    ):
         self.curve = curve
         self.law = law
         self.limits = limits
+        self.nominal = nominal or limits  # the limits before any slow-down: a resume goes back to them
         self.joint_names = tuple(joint_names)
 
     @property
@@ -596,7 +599,7 @@ class TrajectoryGenerator:
         lim = _Limits(traj.limits.velocity * 1e3, traj.limits.acceleration, traj.limits.jerk)
         end = float(traj.law.eval(np.array([traj.duration]))[0][0])
         if v0 <= 1e-9 and abs(a0) <= 1e-9:
-            return Trajectory(curve, _law_from([], 0.0, s0), traj.limits, traj.joint_names)
+            return Trajectory(curve, _law_from([], 0.0, s0), traj.limits, traj.joint_names, traj.nominal)
         # the closest stop point whose backward pass admits the current speed, then time it like any path;
         # speeding up, the arm still gains a^2 / 2j (at the weakest piece's jerk) before it can slow down
         j_min = min(_piece_bounds(p, lim)[2] for p in curve.pieces)
@@ -614,7 +617,7 @@ class TrajectoryGenerator:
         for _ in range(60):
             try:
                 law = _time_law(curve, lim, s0, v0, a0, stop)
-                return Trajectory(curve, law, traj.limits, traj.joint_names)
+                return Trajectory(curve, law, traj.limits, traj.joint_names, traj.nominal)
             except TrajectoryError:
                 if stop >= end:
                     break
@@ -626,25 +629,27 @@ class TrajectoryGenerator:
         s0, v0, a0, _ = (float(x[0]) for x in traj.law.eval(np.array([t])))
         end = float(traj.law.eval(np.array([traj.duration]))[0][0])
         return Trajectory(
-            traj.curve, _time_law(traj.curve, traj.limits, s0, v0, a0, end), traj.limits, traj.joint_names
+            traj.curve, _time_law(traj.curve, traj.limits, s0, v0, a0, end), traj.limits, traj.joint_names, traj.nominal
         )
 
     def slow_down(self, traj: Trajectory, t: float, factor: float) -> Trajectory:
-        """The rest of `traj` from time t on its own curve, with the velocity limits scaled by `factor` in (0, 1]."""
+        """The rest of `traj` from time t on its own curve, at `factor` in (0, 1] of its nominal velocity limits."""
         if not (0.0 < factor <= 1.0):
             raise InvalidInputError(f"factor must be in (0, 1], got {factor}")
         s0, v0, a0, _ = (float(x[0]) for x in traj.law.eval(np.array([t])))
-        lim = _Limits(traj.limits.velocity * factor, traj.limits.acceleration, traj.limits.jerk)
+        base = traj.nominal  # slow-downs of slow-downs do not compound
+        lim = _Limits(base.velocity * factor, base.acceleration, base.jerk)
         law = _time_law(traj.curve, lim, s0, v0, a0, traj.curve.length)
-        return Trajectory(traj.curve, law, lim, traj.joint_names)
+        return Trajectory(traj.curve, law, lim, traj.joint_names, base)
 
     def resume(self, traj: Trajectory) -> Trajectory:
-        """From where `traj` ends at rest (a brake's stop), on to the end of its curve (the original goal)."""
+        """From where `traj` ends at rest (a brake's stop), on to the end of its curve at the nominal limits."""
         s_stop = traj.s_at(traj.duration)
+        lim = traj.nominal
         if traj.curve.length - s_stop < 1e-9:
-            return Trajectory(traj.curve, _law_from([], 0.0, s_stop), traj.limits, traj.joint_names)
-        law = _time_law(traj.curve, traj.limits, s_stop, 0.0, 0.0, traj.curve.length)
-        return Trajectory(traj.curve, law, traj.limits, traj.joint_names)
+            return Trajectory(traj.curve, _law_from([], 0.0, s_stop), lim, traj.joint_names)
+        law = _time_law(traj.curve, lim, s_stop, 0.0, 0.0, traj.curve.length)
+        return Trajectory(traj.curve, law, lim, traj.joint_names)
 
     @staticmethod
     def _can_stop(curve: Curve, lim: _Limits, s0: float, v0: float, stop: float) -> bool:

@@ -179,3 +179,20 @@ def test_bad_perception_configs(tmp_path, panda_dict, edit, expect):
     with pytest.raises(ConfigError) as err:
         load_config(path)
     assert expect in str(err.value) and path in str(err.value), str(err.value)
+
+
+@pytest.mark.parametrize(
+    "operator,expect",
+    [
+        ({"linger": [2.0, 1.0]}, "linger must be [min, max]"),
+        ({"lead_time": [-0.5, 1.0]}, "lead_time must be [min, max]"),
+        ({"reach_region": [[0.6, 0.4, 0.1], [0.9, -0.4, 0.5]]}, "reach_region must be"),
+        ({"goal_margin": -0.1}, "sim.operator.goal_margin"),
+    ],
+)
+def test_bad_operator_script(tmp_path, panda_dict, operator, expect):
+    panda_dict["sim"] = {"operator": operator}
+    path = _write(tmp_path, panda_dict)
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert expect in str(err.value) and "sim.operator" in str(err.value) and path in str(err.value)

@@ -101,7 +101,8 @@ def test_metrics_come_from_truth_and_transitions():
             {"stamp": 12.0, "kind": "operator_left"},
             {"stamp": 13.0, "kind": "placed", "on": "bin_b", "picked_from": "bin_a"},
             {"stamp": 14.0, "kind": "placed", "on": "bin_b", "picked_from": "bin_b"},  # not moved: no cycle
-            {"stamp": 15.0, "kind": "contact", "object": "operator", "depth": -0.01},
+            {"stamp": 15.0, "kind": "contact", "object": "operator", "depth": -0.001},
+            {"stamp": 15.4, "kind": "contact_end", "object": "operator", "deepest": -0.03},
         ],
         transitions=[
             {"stamp": 10.6, "from": "MONITORING", "to": "MONITORING_WITH_PLANNING_PENDING", "trigger": "blocked"},
@@ -113,6 +114,7 @@ def test_metrics_come_from_truth_and_transitions():
     met = compute_metrics(rec, safety_distance=0.03, bins=("bin_a", "bin_b"), t0=0.0, t1=60.0)
     assert met["cycles_attempted"] == 2 and met["cycles_completed"] == 1 and met["cycles_per_minute"] == 1.0
     assert met["collisions"] == 1 and met["collisions_by_object"] == {"operator": 1}
+    assert met["deepest_penetration_m"] == -0.03  # the episode's deepest, not its first touch
     assert met["min_clearance_m"] == 0.05
     assert met["replans"] == {"started": 1, "spliced": 1, "cancelled": 0, "failed": 0}
     assert met["reaction_s"]["n"] == 1 and abs(met["reaction_s"]["median"] - 0.1) < 1e-9

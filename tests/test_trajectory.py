@@ -221,3 +221,15 @@ def test_resume_after_a_brake_goes_on_to_the_goal(table_motion):
     np.testing.assert_allclose(rest.state_at(0.0)[0], stop.state_at(stop.duration)[0], atol=1e-9)
     np.testing.assert_allclose(rest.end, traj.end, atol=1e-6)
     assert np.abs(rest.state_at(0.0)[1]).max() < 1e-9
+
+
+def test_slow_downs_do_not_compound_and_a_resume_goes_back_to_full_speed(panda, table_motion):
+    """Blocked, slowed, braked, resumed, blocked again: each slow-down is a share of the planned speed."""
+    _, gen, traj = table_motion
+    slow = gen.slow_down(traj, traj.duration / 4, 0.5)
+    again = gen.slow_down(slow, slow.duration / 4, 0.5)
+    np.testing.assert_allclose(again.limits.velocity, traj.limits.velocity * 0.5)
+    rest = gen.resume(gen.brake(again, again.duration / 4))
+    np.testing.assert_allclose(rest.limits.velocity, traj.limits.velocity)
+    v = np.abs(rest.evaluate(np.arange(0.0, rest.duration, DT))[1]) / traj.limits.velocity
+    assert v.max() > 0.55  # faster than the slowed limits allow

@@ -153,26 +153,28 @@ class CloudPublisher:
 
     def _loop(self) -> None:
         period = 1.0 / self.rate_hz
-        next_t = time.monotonic()
-        last = None
+        now = time.monotonic()
+        # cameras take turns, evenly spread over a period: a frame is out one render after its stamp, not n
+        due = [now + k * period / len(self.cameras) for k in range(len(self.cameras))]
+        last: list[float | None] = [None] * len(self.cameras)
         while not self._stop.is_set():
+            k = int(np.argmin(due))
+            delay = due[k] - time.monotonic()
+            if delay > 0 and self._stop.wait(delay):
+                break
+            due[k] = max(due[k] + period, time.monotonic())
             js = self._js
-            if js is not None and js[0] != last:  # a camera frame per joint state at most: stamps must increase
-                last = js[0]
-                for name, cam in self.cameras:
-                    with self._lock:
-                        self.scene.set_q(js[1])
-                        if js[2] is not None:
-                            self._apply_bodies(js[2])
-                        depth = cam.depth()
-                    c = cam.camera
-                    pts = c.depth_to_points(self._depth_noise(depth))
-                    # stamped with the joint state it was rendered at: the self-filter sees the same arm
-                    self._pubs[name].put(m.encode_cloud(js[0], pts, name, c.width, c.height))
-                    self.frames += 1
-            next_t += period
-            delay = next_t - time.monotonic()
-            if delay > 0:
-                self._stop.wait(delay)
-            else:
-                next_t = time.monotonic()
+            if js is None or js[0] == last[k]:  # a frame per joint state at most: a camera's stamps must increase
+                continue
+            last[k] = js[0]
+            name, cam = self.cameras[k]
+            with self._lock:
+                self.scene.set_q(js[1])
+                if js[2] is not None:
+                    self._apply_bodies(js[2])
+                depth = cam.depth()
+            c = cam.camera
+            pts = c.depth_to_points(self._depth_noise(depth))
+            # stamped with the joint state it was rendered at: the self-filter sees the same arm
+            self._pubs[name].put(m.encode_cloud(js[0], pts, name, c.width, c.height))
+            self.frames += 1

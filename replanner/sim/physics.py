@@ -474,7 +474,7 @@ class PhysicsSim:
         if target is None:
             op.aimed = False
             for _ in range(10):
-                cand = np.array([op.rng.uniform(0.2, 0.7), op.rng.uniform(-0.6, -0.15), op.rng.uniform(0.1, 0.5)])
+                cand = op.rng.uniform(*np.asarray(oc.reach_region, float))
                 if self._corridor_clear(stand, cand, t):
                     target = cand
                     break
@@ -489,31 +489,48 @@ class PhysicsSim:
         self.event("operator_entering", t, intrusion=op.count, aimed=op.aimed, target=target.round(3).tolist())
 
     def _aim(self, t: float, stand: np.ndarray) -> np.ndarray | None:
-        """A point on the arm where it will be `lead_time` after the hand gets there, if the motion lasts."""
+        """The earliest point of the arm's motion the hand can block with `lead_time` to spare.
+
+        Lead is from the hand's arrival to the arm's first coming within `stop_distance` of the forearm, the
+        time a system has to see the hand, decide and act; points near where the motion ends are skipped.
+        """
         op, oc = self.op, self.sc.operator
         seg = self.timeline.active(t)
         if seg is None or seg[0] + seg[1].duration < t + 0.5:
             return None
         start, traj = seg
-        for _ in range(6):
-            lead = op.uniform(oc.lead_time)
-            # two passes: the time to get there depends on the target
-            tt = t + lead
-            for _ in range(2):
-                cand = self._link_point(self.timeline.state(tt)[0], op.rng)
-                tt = t + float(np.linalg.norm(cand - stand)) / oc.speed + lead
-            if tt <= start + traj.duration and self._corridor_clear(stand, cand, t):
+        end = start + traj.duration
+        link = self._reach_link(op.rng)
+        lead = op.uniform(oc.lead_time)
+        goal = self._link_point(self.timeline.state(end)[0], link)
+        for tt in np.arange(t + lead, end, 0.1):  # the arm's aimed point gets there at tt
+            cand = self._link_point(self.timeline.state(tt)[0], link)
+            arrive = t + float(np.linalg.norm(cand - stand)) / oc.speed
+            if arrive + lead > tt or np.linalg.norm(cand - goal) < oc.goal_margin:
+                continue
+            if self._first_meeting(stand, cand, arrive, tt) - arrive >= lead and self._corridor_clear(stand, cand, t):
                 return cand
         return None
 
-    def _link_point(self, q: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """A point on the arm at q: the hand or the wrist, where a reaching person meets it."""
+    def _first_meeting(self, stand: np.ndarray, tip: np.ndarray, t0: float, t1: float) -> float:
+        """When in [t0, t1] the commanded arm first comes within `stop_distance` of a forearm reaching to tip."""
+        sh, oc = self.shadow, self.sc.operator
+        d = (tip - stand) / np.linalg.norm(tip - stand)
+        set_pose(sh.client, self.shadow_op, capsule_pose(tip, d, oc.arm_length))
+        for tt in np.arange(t0, t1, 0.04):
+            sh.set_q(self.timeline.state(tt)[0])
+            if pb.getClosestPoints(sh.body, self.shadow_op, oc.stop_distance, physicsClientId=sh.client):
+                return float(tt)
+        return t1
+
+    def _reach_link(self, rng: np.random.Generator) -> str:
+        """Where a reaching person meets the arm: the hand or the wrist."""
+        if "panda_hand" in self.shadow.link_index:
+            return str(rng.choice([self.robot.tip_link, "panda_hand", "panda_link6"]))
+        return self.robot.tip_link
+
+    def _link_point(self, q: np.ndarray, link: str) -> np.ndarray:
         self.shadow.set_q(q)
-        link = rng.choice(
-            [self.robot.tip_link, "panda_hand", "panda_link6"]
-            if "panda_hand" in self.shadow.link_index
-            else [self.robot.tip_link]
-        )
         ls = pb.getLinkState(
             self.shadow.body,
             self.shadow.link_index[link],
