@@ -367,10 +367,11 @@ class CollisionChecker:
         return cand_oct, cand_obj, cand_self
 
     # ------------------------------------------------------------------ narrowphase
-    def _narrow(self, scene, objs, octree, T_n, tests) -> Contact | None:
+    def _narrow(self, scene, objs, octree, T_n, tests, locate: bool = False) -> Contact | None:
         """FCL tests for one configuration, in order; returns the first contact found.
 
         tests: (kind, a, b) with kind 0 = body a vs octree, 1 = body a vs obstacle b, 2 = body a vs body b.
+        locate: say where an octree contact is (a second FCL query: for messages, not for validity checks).
         """
         req = self._request
         collide = fcl.collide
@@ -392,7 +393,9 @@ class CollisionChecker:
             if kind == 0:
                 body = place(objs.map_, placed_map, a)
                 if collide(body, octree, req):
-                    return Contact("octree", bodies[a].name, OCTREE, self._contact_point(body, octree))
+                    return Contact(
+                        "octree", bodies[a].name, OCTREE, self._contact_point(body, octree) if locate else None
+                    )
             elif kind == 1:
                 name, obj = scene.obstacles[b]
                 if collide(place(objs.env, placed_env, a), obj, req):
@@ -412,7 +415,7 @@ class CollisionChecker:
         return Contact("limits", self.robot.joint_names[bad[0]], "") if len(bad) else None
 
     def _first_invalid(
-        self, Q: np.ndarray, stop_at_first: bool, octree_only: bool = False
+        self, Q: np.ndarray, stop_at_first: bool, octree_only: bool = False, locate: bool = False
     ) -> tuple[np.ndarray, list[Contact | None]]:
         """Validity (N,) of configurations Q (N, dof); contacts of the invalid ones (None where valid).
 
@@ -442,7 +445,7 @@ class CollisionChecker:
             if not valid[n]:
                 contacts[n] = self._limits_contact(Q[n])
             else:
-                c = self._narrow(scene, objs, octree, T[n], tests[n])
+                c = self._narrow(scene, objs, octree, T[n], tests[n], locate)
                 if c is None:
                     continue
                 valid[n] = False
@@ -464,7 +467,7 @@ class CollisionChecker:
     def check(self, q) -> Contact | None:
         """None if q is valid, else the first contact found (which link touches what)."""
         Q = self.robot.check_q(q).reshape(1, -1)
-        _, contacts = self._first_invalid(Q, True)
+        _, contacts = self._first_invalid(Q, True, locate=True)
         return contacts[0]
 
     def is_valid_batch(self, Q) -> np.ndarray:
@@ -562,7 +565,7 @@ class CollisionChecker:
         """Check straight joint-space segments between waypoints; report the first colliding configuration."""
         Q, pos = self.interpolate(waypoints, resolution)
         for start in range(0, len(Q), chunk):
-            valid, contacts = self._first_invalid(Q[start : start + chunk], True)
+            valid, contacts = self._first_invalid(Q[start : start + chunk], True, locate=True)
             bad = np.flatnonzero(~valid)
             if len(bad):
                 i = start + int(bad[0])

@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -39,14 +40,15 @@ class TrajectoryError(ReplannerError):
 
 
 # ============================================================================ geometry
-class _Piece:
+class _Piece(ABC):
     """One piece of the curve over local arc parameter x in [0, length]."""
 
     length: float
     m: np.ndarray  # (3, dof) bounds of |q'|, |q''|, |q'''| over the piece
 
+    @abstractmethod
     def eval(self, x: np.ndarray, order: int) -> np.ndarray:  # (n, dof)
-        raise NotImplementedError
+        """The derivative of this order with respect to x, at local parameters x (n,)."""
 
 
 class _Line(_Piece):
@@ -585,7 +587,7 @@ class TrajectoryGenerator:
             if isinstance(piece, _Line):
                 continue
             pts = piece.eval(np.linspace(0, piece.length, 9), 0)
-            if not self.checker.check_path(pts).valid:
+            if not self.checker.path_valid(pts):
                 mid = pts[len(pts) // 2]
                 bad.add(int(np.argmin(np.linalg.norm(W - mid, axis=1))))  # the corner this blend rounds
         return np.array(sorted(bad), dtype=np.int64)
@@ -725,7 +727,7 @@ class TrajectoryGenerator:
                 try:
                     curve, _ = self._safe_curve(rest, report, head=head + transition)
                     pts = np.vstack([h.eval(np.linspace(0, h.length, 5), 0) for h in head + transition])
-                    if self.checker is not None and not self.checker.check_path(pts).valid:
+                    if self.checker is not None and not self.checker.path_valid(pts):
                         last_err = "the transition onto the new path collides"
                         continue
                     law = _time_law(curve, lim, 0.0, v0, a0, curve.length)
