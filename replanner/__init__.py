@@ -3,21 +3,14 @@
 The library takes plain arguments; services (the `replanner` command) read config files and open sessions.
 """
 
-from .collision import Clearance, CollisionChecker, Contact, PathCheck
 from .config import ReplannerConfig, load_config, parse_config
-from .errors import (
-    ConfigError,
-    InvalidInputError,
-    ReplannerError,
-    RobotModelError,
-    UnknownNameError,
-    WorldError,
-)
-from .geometry import Box, Cylinder, Mesh, Sphere
-from .occupancy import OccupancyMap
-from .robot import JointLimits, RobotModel
-from .transforms import make_transform
-from .world import World
+from .errors import ConfigError, InvalidInputError, ReplannerError, RobotModelError, UnknownNameError, WorldError
+from .world.collision import Clearance, CollisionChecker, Contact, PathCheck
+from .world.geometry import Box, Cylinder, Mesh, Sphere
+from .world.occupancy import OccupancyMap
+from .world.robot import JointLimits, RobotModel
+from .world.scene import World
+from .world.transforms import make_transform
 
 __version__ = "0.1.0"
 

@@ -6,6 +6,8 @@ Every section forbids unknown fields, so a typo is an error that names the field
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
+from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
@@ -341,81 +343,6 @@ class SceneObjectConfig(_Section):
         return self
 
 
-Range = tuple[float, float]
-
-
-class NoiseConfig(_Section):
-    depth_sigma: float = Field(0.0, ge=0.0, le=0.1, description="Depth noise at 1 m, growing with range^2 [m].")
-    dropout: float = Field(0.0, ge=0.0, le=0.5, description="Share of pixels with no return.")
-    outliers: float = Field(0.0, ge=0.0, le=0.1, description="Share of pixels at a random depth.")
-
-
-class OperatorConfig(_Section):
-    enabled: bool = True
-    stand: Vec3 = Field((0.45, -1.0, 0.3), description="Where the operator's shoulder is [m, base frame].")
-    first_after: float = Field(3.0, ge=0.0, description="First intrusion this long after the start [s].")
-    interval: Range = Field((2.0, 5.0), description="Pause between the end of one intrusion and the next [s].")
-    in_path_probability: float = Field(0.75, ge=0.0, le=1.0, description="Share of intrusions aimed at the path.")
-    lead_time: Range = Field(
-        (0.7, 1.4), description="An aimed hand arrives this long before the arm would come within stop_distance [s]."
-    )
-    goal_margin: float = Field(
-        0.15,
-        ge=0.0,
-        description="An aimed hand keeps this far from where the motion ends: no path avoids a hand on the goal [m].",
-    )
-    reach_region: tuple[Vec3, Vec3] = Field(
-        ((0.2, -0.6, 0.1), (0.7, -0.15, 0.5)),
-        description="Corners (min, max) of the box an unaimed hand reaches into [m, base frame].",
-    )
-    aim_patience: float = Field(
-        3.0, ge=0.0, description="An aimed intrusion waits this long for a motion it can meet, then goes anywhere [s]."
-    )
-    linger: Range = Field((1.0, 2.5), description="The hand stays this long [s].")
-    speed: float = Field(1.0, gt=0.0, le=3.0, description="Hand speed in and out [m/s].")
-    arm_radius: float = Field(0.05, gt=0.0, le=0.3, description="Forearm capsule radius [m].")
-    arm_length: float = Field(0.35, gt=0.0, le=1.5, description="Forearm capsule length [m].")
-    stop_distance: float = Field(
-        0.06, ge=0.0, le=0.5, description="The hand stops rather than come this close to the arm by itself [m]."
-    )
-    keep_off_arm: float = Field(
-        0.12,
-        ge=0.0,
-        description="Entries whose way in passes closer than this to the arm's current pose are not made [m].",
-    )
-
-    @model_validator(mode="after")
-    def _ordered(self) -> OperatorConfig:
-        for name in ("interval", "lead_time", "linger"):
-            lo, hi = getattr(self, name)
-            if not 0.0 <= lo <= hi:
-                raise ValueError(f"{name} must be [min, max] with 0 <= min <= max, got [{lo}, {hi}]")
-        lo, hi = self.reach_region
-        if any(a >= b for a, b in zip(lo, hi, strict=True)):
-            raise ValueError(f"reach_region must be [[min x, y, z], [max x, y, z]] with min < max, got {[lo, hi]}")
-        return self
-
-
-class TaskConfig(_Section):
-    part_size: Vec3 = Field((0.03, 0.03, 0.06), description="The carried part, a box [m].")
-    bins: tuple[str, str] = Field(("bin_a", "bin_b"), description="Scene objects (bin floors) parts rest on.")
-    grasp_gap: float = Field(0.02, gt=0.0, le=0.1, description="Suction: the tip stops this far above the part [m].")
-    approach_height: float = Field(0.12, gt=0.0, le=0.5, description="Pre-grasp/place height above the part [m].")
-    place_gap: float = Field(0.015, ge=0.0, le=0.1, description="A placed part is let go this far above the floor [m].")
-    velocity_scale: float = Field(0.5, gt=0.0, le=1.0, description="Share of the joint speed limits the task uses.")
-
-
-class SimConfig(_Section):
-    physics_hz: float = Field(1000.0, ge=100.0, le=5000.0, description="pybullet steps per second.")
-    joint_state_hz: float = Field(250.0, ge=50.0, le=1000.0, description="Joint-state rate of the simulated arm [Hz].")
-    camera_rate_hz: float | None = Field(None, gt=0.0, le=60.0, description="Overrides every camera's rate_hz.")
-    truth_rate_hz: float = Field(100.0, gt=0.0, le=1000.0, description="Ground-truth clearance samples [Hz].")
-    path_check_hz: float = Field(20.0, gt=0.0, le=200.0, description="Ground truth: obstacle on the planned path [Hz].")
-    noise: NoiseConfig = Field(default_factory=NoiseConfig)
-    operator: OperatorConfig = Field(default_factory=OperatorConfig)
-    task: TaskConfig = Field(default_factory=TaskConfig)
-
-
 class ReplannerConfig(_Section):
     robot: RobotConfig
     collision: CollisionConfig = Field(default_factory=CollisionConfig)
@@ -424,7 +351,21 @@ class ReplannerConfig(_Section):
     controller: ControllerConfig = Field(default_factory=ControllerConfig)
     transport: TransportConfig = Field(default_factory=TransportConfig)
     scene: list[SceneObjectConfig] = Field(default_factory=list, description="Static objects present at start")
-    sim: SimConfig = Field(default_factory=SimConfig)
+
+    def override(self, changes: Mapping[str, Any], source: str = "override") -> ReplannerConfig:
+        """A copy with `changes` merged in and validated, e.g. `cfg.override({"collision": {"padding": 0.0}})`.
+
+        Nested mappings merge key by key; anything else (lists too) replaces. Raises ConfigError naming the field.
+        """
+        if not isinstance(changes, Mapping):
+            raise ConfigError(f"{source}: give a mapping of sections, e.g. {{'collision': {{'padding': 0.0}}}}")
+        return parse_config(_merge(self.model_dump(mode="python"), dict(changes)), source, schema=type(self))
+
+    def core(self) -> ReplannerConfig:
+        """The service's sections alone (a subclass, such as the simulated cell's, drops its own)."""
+        if type(self) is ReplannerConfig:
+            return self
+        return ReplannerConfig.model_validate(self.model_dump(mode="python", include=set(ReplannerConfig.model_fields)))
 
 
 def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:
@@ -466,26 +407,54 @@ def format_validation_error(err: ValidationError, model: type[BaseModel], source
     return "\n".join(lines)
 
 
-def parse_config(data: Any, source: str = "<config>", base_dir: str | os.PathLike | None = None) -> ReplannerConfig:
-    """Validate an already-parsed mapping; `base_dir` anchors relative paths."""
+def parse_config(
+    data: Any,
+    source: str = "<config>",
+    base_dir: str | os.PathLike | None = None,
+    *,
+    schema: type[ReplannerConfig] = ReplannerConfig,
+) -> ReplannerConfig:
+    """Validate an already-parsed mapping against `schema`; `base_dir` anchors relative paths."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: the top level must be a mapping with a 'robot' section", source=source)
     try:
-        return ReplannerConfig.model_validate(data, context={"base_dir": base_dir})
+        return schema.model_validate(data, context={"base_dir": base_dir})
     except ValidationError as err:
         first = err.errors()[0]
-        raise ConfigError(
-            format_validation_error(err, ReplannerConfig, source), source=source, field=_format_loc(tuple(first["loc"]))
-        ) from None
+        message = format_validation_error(err, schema, source)
+        if "sim" in data and "sim" not in schema.model_fields:
+            message += (
+                "\n(the 'sim' section is the simulated cell's: read it with replanner.sim.config.load_cell_config)"
+            )
+        raise ConfigError(message, source=source, field=_format_loc(tuple(first["loc"]))) from None
 
 
-def load_config(path: str | os.PathLike) -> ReplannerConfig:
-    """Read and validate a YAML config file; errors name the file, the field and what is allowed."""
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError(
-            f"config file not found: {p} (pass an existing YAML file, e.g. configs/panda.yaml)", source=str(p)
-        )
+def profiles() -> list[str]:
+    """Names of the shipped config profiles (configs/*.yaml), e.g. panda, iiwa, demo."""
+    folder = resources.files("replanner_configs")
+    return sorted(p.name.removesuffix(".yaml") for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def config_path(source: str | os.PathLike) -> Path:
+    """The YAML file of `source`: an existing path, or the file of a shipped profile name."""
+    p = Path(source)
+    if p.is_file():
+        return p
+    name = str(source)
+    if name in profiles():
+        return Path(str(resources.files("replanner_configs") / f"{name}.yaml"))
+    raise ConfigError(
+        f"config file not found: {p} (pass an existing YAML file, or a shipped profile: {', '.join(profiles())})",
+        source=str(p),
+    )
+
+
+def load_config(source: str | os.PathLike, *, schema: type[ReplannerConfig] = ReplannerConfig) -> ReplannerConfig:
+    """Read and validate a YAML config file or a shipped profile by name; errors name the file and the field.
+
+    `base: other.yaml` inherits from another file (relative to this one); mappings merge key by key.
+    """
+    p = config_path(source)
     data = _read_yaml(p)
     base_dir = p.parent.resolve()
     seen = [p.resolve()]
@@ -502,7 +471,7 @@ def load_config(path: str | os.PathLike) -> ReplannerConfig:
         base = _read_yaml(bp)
         data = _merge(base, data)
         base_dir = bp.parent.resolve()  # relative paths of the merged file: the base's (profiles live together)
-    return parse_config(data, source=str(p), base_dir=base_dir)
+    return parse_config(data, source=str(p), base_dir=base_dir, schema=schema)
 
 
 def _read_yaml(p: Path) -> Any:

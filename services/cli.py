@@ -5,15 +5,13 @@ from __future__ import annotations
 import json
 import logging
 import sys
-from importlib import resources
-from pathlib import Path
 
 import typer
 from rich.console import Console
 from rich.table import Table
 
-from replanner.config import ReplannerConfig, load_config
 from replanner.errors import ReplannerError
+from replanner.sim.config import CellConfig, load_cell_config
 
 app = typer.Typer(
     help="replanner: reactive replanning for robot arms next to people.",
@@ -29,19 +27,9 @@ err_console = Console(stderr=True, soft_wrap=True)  # never break a path or a fi
 CONFIG_HELP = "Robot config: a YAML file, or the name of a shipped profile (panda, iiwa)."
 
 
-def shipped_profiles() -> list[str]:
-    return sorted(
-        p.name.removesuffix(".yaml") for p in resources.files("replanner_configs").iterdir() if p.name.endswith(".yaml")
-    )
-
-
-def resolve_config(config: str) -> ReplannerConfig:
-    """Load a config file, or a shipped profile by name."""
-    path = Path(config)
-    if not path.exists() and config in shipped_profiles():
-        with resources.as_file(resources.files("replanner_configs") / f"{config}.yaml") as p:
-            return load_config(p)
-    return load_config(path)
+def resolve_config(config: str) -> CellConfig:
+    """A config file or a shipped profile by name, with the simulated cell's section (the demo's file serves all)."""
+    return load_cell_config(config)
 
 
 def _fail(err: Exception) -> None:
@@ -319,8 +307,8 @@ def bench_service(
     Console().print(t)
 
 
-from .cli_service import register  # noqa: E402  (the service commands need `app`)
-from .cli_sim import register as register_sim  # noqa: E402
+from .cli_service import register
+from .cli_sim import register as register_sim
 
 register(app)
 register_sim(app)

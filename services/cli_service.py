@@ -54,7 +54,7 @@ class _Connection:
     """An open session and client for the CLI's one-shot commands."""
 
     def __init__(self, config, robot, mode, connect, listen, zenoh_config, timeout):
-        from replanner.client import Client
+        from replanner.apps.client import Client
         from replanner.transport.session import open_session
 
         self.cfg = _config(config)

@@ -106,10 +106,10 @@ def register(app: typer.Typer) -> None:
         zenoh_config: str | None = typer.Option(None, "--zenoh-config", help=ZCONF_HELP),
     ) -> None:
         """Loop pick at one bin -> place at the other, using the service and the sim's suction gripper."""
-        from replanner.client import Client
-        from replanner.pick_place import Gripper, PickAndPlace
+        from replanner.apps.client import Client
+        from replanner.apps.pick_place import Gripper, PickAndPlace
         from replanner.transport.session import open_session
-        from replanner.world import scene_from_config, top_centers, world_boxes
+        from replanner.world.scene import scene_from_config, top_centers, world_boxes
 
         signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
         try:

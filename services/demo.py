@@ -13,25 +13,15 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from replanner.client import Client
-from replanner.config import ReplannerConfig
-from replanner.demo import Recorder, compute_metrics, plot_timeline
+from replanner.apps.client import Client
+from replanner.apps.demo import Recorder, compute_metrics, plot_timeline
+from replanner.config import ReplannerConfig, config_path
 from replanner.errors import ReplannerError
 from replanner.transport.session import free_port, node_session
 
 from .procs import Proc, replanner_cmd
 
 POLICIES = {"replan": "replan", "stop-and-wait": "stop_and_wait", "none": "none"}
-
-
-def config_path(config: str) -> Path:
-    """A YAML path, or the file of a shipped profile."""
-    p = Path(config)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        return p.resolve()
-    import replanner_configs
-
-    return Path(replanner_configs.__file__).parent / f"{config}.yaml"
 
 
 def run(
@@ -114,7 +104,7 @@ def run(
 
 
 def _wait_ready(client: Client, session, procs: list[Proc], logs: Path, timeout: float = 120.0) -> None:
-    from replanner.pick_place import Gripper
+    from replanner.apps.pick_place import Gripper
 
     end = time.monotonic() + timeout
     gripper = Gripper(session, client.keys.root, timeout=1.0)

@@ -11,11 +11,11 @@ import time
 import zenoh
 
 from replanner.config import ReplannerConfig
-from replanner.driver import JointState, KinematicDriver, SampledTrajectory
+from replanner.control.driver import JointState, KinematicDriver, SampledTrajectory
 from replanner.errors import InvalidInputError
-from replanner.robot import RobotModel
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
+from replanner.world.robot import RobotModel
 
 log = logging.getLogger(__name__)
 

@@ -12,20 +12,20 @@ import time
 import numpy as np
 import zenoh
 
-from replanner.collision import CollisionChecker
 from replanner.config import ReplannerConfig
-from replanner.controller import Controller, Goal, GoalRejected
-from replanner.driver import JointState
+from replanner.control.controller import Controller, Goal, GoalRejected
+from replanner.control.driver import JointState
 from replanner.errors import InvalidInputError, ReplannerError, UnknownNameError, WorldError
 from replanner.perception import CloudFrame, CloudRejected, Perception
-from replanner.planning import Planner, PoseGoal
-from replanner.planproc import PlanningProcess
-from replanner.robot import RobotModel
-from replanner.trajectory import TrajectoryGenerator
-from replanner.transforms import check_transform
+from replanner.planning.planner import Planner, PoseGoal
+from replanner.planning.process import PlanningProcess
+from replanner.trajectory.generator import TrajectoryGenerator
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
-from replanner.world import World, scene_from_config
+from replanner.world.collision import CollisionChecker
+from replanner.world.robot import RobotModel
+from replanner.world.scene import World, scene_from_config
+from replanner.world.transforms import check_transform
 
 log = logging.getLogger(__name__)
 
@@ -383,7 +383,7 @@ class Service:
 
 
 def _pose(T) -> dict:
-    from replanner.transforms import matrix_to_quat
+    from replanner.world.transforms import matrix_to_quat
 
     return {"position": T[:3, 3].tolist(), "quat_xyzw": matrix_to_quat(T[:3, :3]).tolist()}
 

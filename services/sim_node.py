@@ -63,7 +63,7 @@ def run_sim(
 def run_cameras(cfg: ReplannerConfig, conf: zenoh.Config, *, seed: int) -> None:
     from replanner.sim.cloud_publisher import CloudPublisher
     from replanner.transport.session import open_session
-    from replanner.world import scene_from_config
+    from replanner.world.scene import scene_from_config
 
     done = _wait_for_signal()
     session = open_session(conf)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from replanner.geometry import Box
-from replanner.transforms import make_transform
+from replanner.world.geometry import Box
+from replanner.world.transforms import make_transform
 
 ARM_UP = np.array([0.0, 0.0, 0.0, -0.0698, 0.0, 0.3, 0.785])
 ARM_FORWARD = np.array([0.0, 1.4, 0.0, -0.3, 0.0, 1.7, 0.785])  # reaching low, under the sleeve
@@ -30,9 +30,9 @@ def sleeve(robot, q=ARM_UP, gap: float = 0.03, t: float = 0.02, bottom: float = 
     cx, cy = (lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2
     wx, wy = hi[0] - lo[0] + 2 * gap, hi[1] - lo[1] + 2 * gap
     return [
-        ("sleeve_px", Box((t, wy + 2 * t, height)), make_transform((hi[0] + gap + t / 2, cy, mid))),
-        ("sleeve_nx", Box((t, wy + 2 * t, height)), make_transform((lo[0] - gap - t / 2, cy, mid))),
-        ("sleeve_py", Box((wx, t, height)), make_transform((cx, hi[1] + gap + t / 2, mid))),
-        ("sleeve_ny", Box((wx, t, height)), make_transform((cx, lo[1] - gap - t / 2, mid))),
-        ("sleeve_lid", Box((wx + 2 * t, wy + 2 * t, t)), make_transform((cx, cy, top + t / 2))),
+        ("sleeve_px", Box(size=(t, wy + 2 * t, height)), make_transform((hi[0] + gap + t / 2, cy, mid))),
+        ("sleeve_nx", Box(size=(t, wy + 2 * t, height)), make_transform((lo[0] - gap - t / 2, cy, mid))),
+        ("sleeve_py", Box(size=(wx, t, height)), make_transform((cx, hi[1] + gap + t / 2, mid))),
+        ("sleeve_ny", Box(size=(wx, t, height)), make_transform((cx, lo[1] - gap - t / 2, mid))),
+        ("sleeve_lid", Box(size=(wx + 2 * t, wy + 2 * t, t)), make_transform((cx, cy, top + t / 2))),
     ]

@@ -10,12 +10,11 @@ import yaml
 from replanner.bench.scenes import add_table
 from replanner.config import parse_config
 from replanner.perception import CameraModel, CloudFrame, Perception, pose_from_config
-from replanner.robot import RobotModel
 from replanner.sim.camera import PyBulletDepthCamera
 from replanner.sim.scene import PyBulletScene
-from replanner.world import World
-
-from .conftest import CONFIGS
+from replanner.world.robot import RobotModel
+from replanner.world.scene import World
+from tests.conftest import CONFIGS
 
 
 def config_dict(width: int = 320, height: int = 240, **perception) -> dict:

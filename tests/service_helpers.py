@@ -6,7 +6,7 @@ import time
 from pathlib import Path
 
 import zenoh
-from replanner_services.procs import Proc, replanner_cmd  # noqa: F401
+from replanner_services.procs import Proc, replanner_cmd
 
 from replanner.transport.session import free_port, node_session  # noqa: F401  (tests import them from here)
 

@@ -9,7 +9,7 @@ import sys
 
 import yaml
 
-from .conftest import CONFIGS
+from tests.conftest import CONFIGS
 
 
 def replanner(*args, timeout=300):

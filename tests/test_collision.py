@@ -7,12 +7,11 @@ import numpy as np
 import pytest
 
 from replanner.bench.scenes import add_table, clutter_map
-from replanner.collision import OCTREE, CollisionChecker
-from replanner.geometry import Box, Cylinder, Sphere, to_fcl
-from replanner.transforms import make_transform
-from replanner.world import World
-
-from .oracle import HULL_MARGIN, PyBulletOracle
+from replanner.world.collision import OCTREE, CollisionChecker
+from replanner.world.geometry import Box, Cylinder, Sphere, to_fcl
+from replanner.world.scene import World
+from replanner.world.transforms import make_transform
+from tests.oracle import HULL_MARGIN, PyBulletOracle
 
 PANDA_FOLDED = [0.0, 0.18, 0.02, -3.03, -0.63, 0.15, 0.8]  # elbow folded: the hand is inside link 1/2
 
@@ -21,13 +20,13 @@ def _random_boxes(rng, k):
     for i in range(k):
         size = tuple(rng.uniform(0.05, 0.3, 3))
         pose = make_transform(rng.uniform([-0.7, -0.7, 0.0], [0.8, 0.7, 1.0]), rng.normal(size=4))
-        yield f"box{i}", Box(size), pose
+        yield f"box{i}", Box(size=size), pose
 
 
 def test_pybullet_hull_margin_is_what_the_oracle_assumes(panda):
     """FCL distance between the model's hulls minus pybullet's distance: pybullet's 1 mm margin per hull."""
     oracle = PyBulletOracle(panda)
-    box, pose = Box((0.2, 0.2, 0.2)), make_transform((0.5, 0.0, 0.4))
+    box, pose = Box(size=(0.2, 0.2, 0.2)), make_transform((0.5, 0.0, 0.4))
     body = oracle.add("b", box, pose)
     ref = fcl.CollisionObject(to_fcl(box), fcl.Transform(pose[:3, :3], pose[:3, 3]))
     import pybullet as pb
@@ -125,7 +124,7 @@ def test_broadphase_and_tables_never_change_a_verdict(panda, panda_cfg):
     rng = np.random.default_rng(5)
     for name, shape, pose in _random_boxes(rng, 4):
         world.add(name, shape, pose)
-    world.attach_new("part", Box((0.06, 0.06, 0.12)), "panda_hand", make_transform((0, 0, 0.16)))
+    world.attach_new("part", Box(size=(0.06, 0.06, 0.12)), "panda_hand", make_transform((0, 0, 0.16)))
     world.set_occupancy(clutter_map(rng, 20_000))
     checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
     Q = panda.random_q(rng, 1500)
@@ -164,7 +163,7 @@ def test_attached_box_moves_with_the_hand_and_hits_the_table(panda, panda_cfg):
     checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
     q_high = panda.home.copy()  # the hand points down, the grasp point ~0.48 m above the table
     assert panda.link_pose(q_high, "panda_grasptarget")[2, 3] > 0.4
-    part = Box((0.05, 0.05, 0.30))  # a long part held in the gripper, sticking out 0.2 m below the fingertips
+    part = Box(size=(0.05, 0.05, 0.30))  # a long part held in the gripper, sticking out 0.2 m below the fingertips
     world.add("part", part, panda.link_pose(q_high, "panda_grasptarget") @ make_transform((0, 0, 0.1)))
     world.attach("part", "panda_grasptarget", q_high)
     assert checker.check(q_high) is None  # held between the fingers: the hand may touch it
@@ -213,7 +212,7 @@ def test_path_check_finds_an_obstacle_between_far_apart_waypoints(panda, panda_c
     assert checker.check_path([a, b]).valid
     # a thin pillar on the arc swept by the hand, between the two ends
     tip = panda.link_pose(np.where(np.arange(7) == 0, 0.2, a), "panda_hand")[:3, 3]
-    world.add("pillar", Cylinder(0.02, 1.0), make_transform((tip[0], tip[1], 0.5)))
+    world.add("pillar", Cylinder(radius=0.02, length=1.0), make_transform((tip[0], tip[1], 0.5)))
     assert checker.is_valid(a) and checker.is_valid(b)
     result = checker.check_path([a, b])
     assert not result.valid
@@ -227,7 +226,7 @@ def test_path_check_finds_an_obstacle_between_far_apart_waypoints(panda, panda_c
 
 def test_interpolation_bounds_the_motion_of_every_robot_point(panda):
     world = World(panda)
-    world.attach_new("part", Box((0.05, 0.05, 0.3)), "panda_hand", make_transform((0, 0, 0.2)))
+    world.attach_new("part", Box(size=(0.05, 0.05, 0.3)), "panda_hand", make_transform((0, 0, 0.2)))
     checker = CollisionChecker(panda, world, padding=0.0, path_resolution=0.02)
     rng = np.random.default_rng(9)
     W = panda.random_q(rng, 6)
@@ -257,8 +256,8 @@ def test_clearance_matches_pybullet(panda):
     for name, shape, pose in _random_boxes(rng, 3):
         world.add(name, shape, pose)
         oracle.add(name, shape, pose)
-    world.add("ball", Sphere(0.08), make_transform((0.4, 0.3, 0.5)))
-    oracle.add("ball", Sphere(0.08), make_transform((0.4, 0.3, 0.5)))
+    world.add("ball", Sphere(radius=0.08), make_transform((0.4, 0.3, 0.5)))
+    oracle.add("ball", Sphere(radius=0.08), make_transform((0.4, 0.3, 0.5)))
     checker = CollisionChecker(panda, world, padding=0.0)
     checked = 0
     for q in panda.random_q(rng, 300):
@@ -280,7 +279,7 @@ def test_clearance_reports_the_closest_link_and_the_octree(panda):
     q = panda.home
     hand = panda.link_pose(q, "panda_hand")[:3, 3]
     # a blob of voxels 10 cm below the hand
-    from replanner.occupancy import OccupancyMap
+    from replanner.world.occupancy import OccupancyMap
 
     pts = hand + np.array([0, 0, -0.20]) + np.random.default_rng(0).uniform(-0.02, 0.02, (200, 3))
     world.set_occupancy(OccupancyMap.from_points(pts, 0.01))
@@ -292,7 +291,7 @@ def test_clearance_reports_the_closest_link_and_the_octree(panda):
 
 
 def test_octree_contact_says_where_the_voxels_are(panda):
-    from replanner.occupancy import OccupancyMap
+    from replanner.world.occupancy import OccupancyMap
 
     world = World(panda)
     q = panda.home

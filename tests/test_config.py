@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import yaml
 
-from replanner.config import load_config
+from replanner.config import ReplannerConfig, load_config
+from replanner.sim.config import load_cell_config
 from replanner.errors import ConfigError, RobotModelError, UnknownNameError
-from replanner.robot import RobotModel
-
-from .conftest import CONFIGS
+from replanner.world.robot import RobotModel
+from tests.conftest import CONFIGS
 
 
 def _write(tmp_path, data) -> str:
@@ -31,6 +31,30 @@ def test_shipped_profiles_load(name):
     cfg = load_config(CONFIGS / name)
     robot = RobotModel.from_config(cfg.robot)
     assert robot.dof == 7 and len(robot.limits.jerk) == 7
+    assert load_config(name.removesuffix(".yaml")) == cfg  # a profile by name, from any directory
+
+
+def test_the_cell_config_is_the_service_config_plus_sim():
+    cell = load_cell_config("demo")
+    assert cell.sim.task.bins == ("bin_a", "bin_b")
+    assert type(cell.core()) is ReplannerConfig and "sim" not in cell.core().model_dump()
+    with pytest.raises(ConfigError, match="load_cell_config"):
+        load_config("demo")  # the service's schema names the sim section's reader
+
+
+def test_override_validates_and_names_the_field():
+    cfg = load_config("panda")
+    assert cfg.override({"collision": {"padding": 0.0}}).collision.padding == 0.0
+    assert cfg.collision.padding == 0.01  # a copy
+    with pytest.raises(ConfigError, match=r"collision\.padding"):
+        cfg.override({"collision": {"padding": -1}})
+    with pytest.raises(ConfigError, match="unknown field 'pading'"):
+        cfg.override({"collision": {"pading": 0.0}})
+
+
+def test_unknown_profile_lists_the_shipped_ones():
+    with pytest.raises(ConfigError, match="panda"):
+        load_config("pandas")
 
 
 def test_unknown_field_names_field_file_and_allowed_fields(tmp_path, panda_dict):
@@ -194,5 +218,5 @@ def test_bad_operator_script(tmp_path, panda_dict, operator, expect):
     panda_dict["sim"] = {"operator": operator}
     path = _write(tmp_path, panda_dict)
     with pytest.raises(ConfigError) as err:
-        load_config(path)
+        load_cell_config(path)
     assert expect in str(err.value) and "sim.operator" in str(err.value) and path in str(err.value)

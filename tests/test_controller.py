@@ -10,23 +10,22 @@ import pytest
 import yaml
 
 from replanner.config import parse_config
-from replanner.controller import Goal, GoalRejected, GoalStatus, State
+from replanner.control.controller import Goal, GoalRejected, GoalStatus, State
 from replanner.errors import UnknownNameError
-from replanner.geometry import Box
-from replanner.planning import PoseGoal
+from replanner.planning.planner import PoseGoal
 from replanner.sim.kinematic import KinematicSim
-from replanner.trajectory import progress_along
-from replanner.transforms import make_transform
-
-from .conftest import CONFIGS
-from .helpers import ARM_FORWARD, ARM_UP, sleeve
+from replanner.trajectory.generator import progress_along
+from replanner.world.geometry import Box
+from replanner.world.transforms import make_transform
+from tests.conftest import CONFIGS
+from tests.helpers import ARM_FORWARD, ARM_UP, sleeve
 
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 SLOW = 0.35  # velocity scale: ~2.5 s from A to B, time for the cameras to see things
 # a plate through the goal's hand, facing the front camera: cameras map surfaces, so the hand must cross one
-PLATE = Box((0.02, 0.3, 0.3))
-TABLE = ("table", Box((1.6, 1.4, 0.05)), make_transform((0.3, 0.0, -0.025)))
+PLATE = Box(size=(0.02, 0.3, 0.3))
+TABLE = ("table", Box(size=(1.6, 1.4, 0.05)), make_transform((0.3, 0.0, -0.025)))
 
 
 def sim_config(**controller) -> dict:
@@ -120,7 +119,7 @@ def _drop_on_path(sim, after: float, size=0.14, where: float = 0.5):
     mid = A + where * (B - A)
     c = hand_at(sim, mid)
     time.sleep(after)
-    sim.add_obstacle("intruder", Box((size, size, size)), make_transform(c))
+    sim.add_obstacle("intruder", Box(size=(size, size, size)), make_transform(c))
     return c
 
 

@@ -9,12 +9,11 @@ import time
 import numpy as np
 import pytest
 
-from replanner.client import Client
-from replanner.demo import Recording, compute_metrics
-from replanner.pick_place import Gripper
+from replanner.apps.client import Client
+from replanner.apps.demo import Recording, compute_metrics
+from replanner.apps.pick_place import Gripper
 from replanner.transport import messages as m
-
-from .service_helpers import Proc, free_port, node_session, replanner_cmd
+from tests.service_helpers import Proc, free_port, node_session, replanner_cmd
 
 pytestmark = pytest.mark.slow
 NAMES = [f"panda_joint{i}" for i in range(1, 8)]

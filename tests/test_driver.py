@@ -6,8 +6,8 @@ import time
 
 import numpy as np
 
-from replanner.driver import KinematicDriver, Timeline
-from replanner.trajectory import TrajectoryGenerator
+from replanner.control.driver import KinematicDriver, Timeline
+from replanner.trajectory.generator import TrajectoryGenerator
 
 
 def test_timeline_replaces_from_the_start_time(panda):

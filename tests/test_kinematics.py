@@ -7,9 +7,8 @@ import pybullet as pb
 import pytest
 
 from replanner.errors import InvalidInputError
-from replanner.transforms import rotation_angle
-
-from .oracle import PyBulletOracle
+from replanner.world.transforms import rotation_angle
+from tests.oracle import PyBulletOracle
 
 
 def test_fk_matches_pybullet_on_1000_random_configurations(profile):

@@ -8,12 +8,11 @@ import fcl
 import numpy as np
 import pytest
 
-from replanner.geometry import Box, padded_geometry, sample_surface
-from replanner.occupancy import voxel_keys
 from replanner.perception import CloudFrame, CloudRejected
-from replanner.transforms import make_transform
-
-from .perception_helpers import Rig, config_dict
+from replanner.world.geometry import Box, padded_geometry, sample_surface
+from replanner.world.occupancy import voxel_keys
+from replanner.world.transforms import make_transform
+from tests.perception_helpers import Rig, config_dict
 
 
 @pytest.fixture
@@ -25,7 +24,7 @@ def rig(panda):
 
 def test_removed_box_is_cleared_within_the_bound(rig):
     center, size = (0.7, 0.35, 0.15), (0.12, 0.12, 0.3)
-    rig.sim.add("box", Box(size), make_transform(center))
+    rig.sim.add("box", Box(size=size), make_transform(center))
     for _ in range(10):
         rig.frame()
     seen = rig.voxels_in(center, np.add(size, 0.02))
@@ -43,7 +42,7 @@ def test_a_new_obstacle_is_in_the_map_after_one_frame(rig):
     rig.frame()
     center, size = (0.6, -0.3, 0.2), (0.1, 0.1, 0.4)
     assert rig.voxels_in(center, size) == 0
-    rig.sim.add("box", Box(size), make_transform(center))
+    rig.sim.add("box", Box(size=size), make_transform(center))
     rig.frame()
     assert rig.voxels_in(center, np.add(size, 0.02)) > 30
 
@@ -110,9 +109,9 @@ def test_self_filter_removes_the_robot_and_keeps_what_is_near_it(panda):
 
 
 def test_attached_part_and_static_objects_are_not_obstacles(rig):
-    rig.world.add("crate", Box((0.2, 0.3, 0.25)), make_transform((0.55, -0.35, 0.125)))
-    rig.sim.add("crate", Box((0.2, 0.3, 0.25)), make_transform((0.55, -0.35, 0.125)))
-    part = Box((0.05, 0.05, 0.2))
+    rig.world.add("crate", Box(size=(0.2, 0.3, 0.25)), make_transform((0.55, -0.35, 0.125)))
+    rig.sim.add("crate", Box(size=(0.2, 0.3, 0.25)), make_transform((0.55, -0.35, 0.125)))
+    part = Box(size=(0.05, 0.05, 0.2))
     rig.world.attach_new("part", part, "panda_grasptarget", make_transform((0, 0, 0.05)))
     pose = rig.robot.link_pose(rig.q, "panda_grasptarget") @ make_transform((0, 0, 0.05))
     rig.sim.add("part", part, pose)
@@ -123,7 +122,7 @@ def test_attached_part_and_static_objects_are_not_obstacles(rig):
 
 def test_a_frame_taken_before_a_release_still_filters_the_carried_part(rig):
     """Frames arrive late: one rendered while the part was carried is filtered as it was, not as the scene is."""
-    part = Box((0.05, 0.05, 0.2))
+    part = Box(size=(0.05, 0.05, 0.2))
     rig.world.attach_new("part", part, "panda_grasptarget", make_transform((0, 0, 0.05)))
     carried = rig.robot.link_pose(rig.q, "panda_grasptarget") @ make_transform((0, 0, 0.05))
     rig.sim.add("part", part, carried)
@@ -146,7 +145,7 @@ def test_a_frame_taken_before_a_release_still_filters_the_carried_part(rig):
 def test_salt_noise_is_removed_and_a_small_box_survives(panda, method):
     rig = Rig(config_dict(outliers={"method": method}), robot=panda)
     center, size = (0.6, -0.35, 0.05), (0.1, 0.1, 0.1)
-    rig.sim.add("box", Box(size), make_transform(center))
+    rig.sim.add("box", Box(size=size), make_transform(center))
     clean = rig.cameras["front"].cloud()
     rng = np.random.default_rng(1)
     noisy = clean.copy()
@@ -189,9 +188,9 @@ def test_two_cameras_fuse_and_one_does_not_clear_what_it_cannot_see(rig):
     # box A is seen by both cameras; box B by the front camera only (a board hides it from the side camera)
     a_center, a_size = (0.55, -0.45, 0.1), (0.12, 0.12, 0.2)
     b_center, b_size = (0.75, 0.05, 0.1), (0.1, 0.1, 0.2)
-    rig.sim.add("a", Box(a_size), make_transform(a_center))
-    rig.sim.add("b", Box(b_size), make_transform(b_center))
-    rig.sim.add("board", Box((0.5, 0.02, 0.5)), make_transform((0.75, 0.35, 0.25)))
+    rig.sim.add("a", Box(size=a_size), make_transform(a_center))
+    rig.sim.add("b", Box(size=b_size), make_transform(b_center))
+    rig.sim.add("board", Box(size=(0.5, 0.02, 0.5)), make_transform((0.75, 0.35, 0.25)))
     rig.frame("front")
     front_only = rig.voxels_in(a_center, np.add(a_size, 0.02))
     rig.frame("side")
@@ -211,7 +210,7 @@ def test_two_cameras_fuse_and_one_does_not_clear_what_it_cannot_see(rig):
 def test_voxels_no_sensor_sees_decay(panda):
     rig = Rig(config_dict(occupancy={"decay_after": 0.5}), robot=panda)
     center, size = (0.6, 0.3, 0.15), (0.12, 0.12, 0.3)
-    rig.sim.add("box", Box(size), make_transform(center))
+    rig.sim.add("box", Box(size=size), make_transform(center))
     rig.frame()
     assert rig.voxels_in(center, np.add(size, 0.02)) > 20
     away = make_transform((1.6, 0.0, 1.2)) @ make_transform((0, 0, 0), (1.0, 0.0, 0.0, 0.0))  # looking up
@@ -240,7 +239,7 @@ def test_self_filter_uses_the_joint_state_nearest_the_cloud(rig):
 
 
 def test_clear_empties_the_map(rig):
-    rig.sim.add("box", Box((0.1, 0.1, 0.3)), make_transform((0.6, 0.3, 0.15)))
+    rig.sim.add("box", Box(size=(0.1, 0.1, 0.3)), make_transform((0.6, 0.3, 0.15)))
     rig.frame()
     assert len(rig.world.occupancy) > 0
     rig.perception.clear()
@@ -271,7 +270,7 @@ def _bad_frames(rig):
 
 
 def test_bad_clouds_are_rejected_and_leave_the_map_unchanged(rig):
-    rig.sim.add("box", Box((0.1, 0.1, 0.3)), make_transform((0.6, 0.3, 0.15)))
+    rig.sim.add("box", Box(size=(0.1, 0.1, 0.3)), make_transform((0.6, 0.3, 0.15)))
     rig.frame()
     rig.perception.add_joint_state(10.0, rig.q)
     before = rig.world.occupancy
@@ -301,7 +300,7 @@ def test_no_joint_state_yet_is_rejected(panda):
 
 def test_shadows_fill_space_behind_surfaces_but_never_the_robot(rig):
     center, size = (0.55, -0.3, 0.15), (0.12, 0.12, 0.3)
-    rig.sim.add("box", Box(size), make_transform(center))
+    rig.sim.add("box", Box(size=size), make_transform(center))
     rep = rig.frame()
     assert rep.counts["shadow"] > 0
     occ = rig.world.occupancy

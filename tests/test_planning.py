@@ -8,15 +8,14 @@ import numpy as np
 import pytest
 
 from replanner.bench.scenes import add_table
-from replanner.collision import CollisionChecker
 from replanner.errors import InvalidInputError
-from replanner.geometry import Box
-from replanner.ik import IKError, solve_ik
-from replanner.planning import GoalInvalid, NoSolution, Planner, PoseGoal, StartInvalid, UnknownPlanner
-from replanner.transforms import make_transform, matrix_to_quat, rotation_angle
-from replanner.world import World
-
-from .helpers import ARM_FORWARD, ARM_UP, sleeve
+from replanner.planning.ik import IKError, solve_ik
+from replanner.planning.planner import GoalInvalid, NoSolution, Planner, PoseGoal, StartInvalid, UnknownPlanner
+from replanner.world.collision import CollisionChecker
+from replanner.world.geometry import Box
+from replanner.world.scene import World
+from replanner.world.transforms import make_transform, matrix_to_quat, rotation_angle
+from tests.helpers import ARM_FORWARD, ARM_UP, sleeve
 
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
@@ -26,7 +25,7 @@ B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 def wall_world(panda, panda_cfg):
     world = World(panda)
     add_table(world)
-    world.add("wall", Box((0.3, 0.05, 0.6)), make_transform((0.5, 0.0, 0.3)))
+    world.add("wall", Box(size=(0.3, 0.05, 0.6)), make_transform((0.5, 0.0, 0.3)))
     checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
     return world, checker
 

@@ -9,16 +9,15 @@ import numpy as np
 import pytest
 
 from replanner.bench.scenes import add_table
-from replanner.collision import CollisionChecker
-from replanner.geometry import Box
-from replanner.occupancy import OccupancyMap
-from replanner.planning import GoalInvalid, PlanningCanceled, StartInvalid
-from replanner.planproc import PlanningProcess
-from replanner.trajectory import Trajectory, TrajectoryGenerator
-from replanner.transforms import make_transform
-from replanner.world import World
-
-from .helpers import ARM_FORWARD, ARM_UP, sleeve
+from replanner.planning.planner import GoalInvalid, PlanningCanceled, StartInvalid
+from replanner.planning.process import PlanningProcess
+from replanner.trajectory.generator import Trajectory, TrajectoryGenerator
+from replanner.world.collision import CollisionChecker
+from replanner.world.geometry import Box
+from replanner.world.occupancy import OccupancyMap
+from replanner.world.scene import World
+from replanner.world.transforms import make_transform
+from tests.helpers import ARM_FORWARD, ARM_UP, sleeve
 
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
@@ -39,7 +38,7 @@ def world(panda):
 
 
 def test_plans_and_times_in_the_child(proc, world, panda, panda_cfg):
-    world.add("wall", Box((0.3, 0.05, 0.6)), make_transform((0.5, 0.0, 0.3)))
+    world.add("wall", Box(size=(0.3, 0.05, 0.6)), make_transform((0.5, 0.0, 0.3)))
     traj, res = proc.plan(world.snapshot(), A, B, deadline=2.0)
     assert isinstance(traj, Trajectory) and not res.direct  # the wall reached the child
     checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
@@ -60,7 +59,7 @@ def test_the_occupancy_map_reaches_the_child(proc, world, panda):
 
 
 def test_errors_keep_their_type(proc, world, panda):
-    world.add("post", Box((0.3, 0.3, 0.3)), make_transform(panda.link_pose(B, "panda_hand")[:3, 3]))
+    world.add("post", Box(size=(0.3, 0.3, 0.3)), make_transform(panda.link_pose(B, "panda_hand")[:3, 3]))
     with pytest.raises(GoalInvalid, match="goal is in collision"):
         proc.plan(world.snapshot(), A, B)
     with pytest.raises(StartInvalid, match="start is in collision"):

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from .service_helpers import Stack, node_session
+from tests.service_helpers import Stack, node_session
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 BLOCK = re.compile(r"```python\n(.*?)```", re.S)

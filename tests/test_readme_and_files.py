@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import re
 
-from .conftest import ROOT
+from tests.conftest import ROOT
 
 
 def test_readme_python_snippets_run(capsys):
@@ -27,7 +27,7 @@ def test_readme_python_snippets_run(capsys):
 def test_readme_service_snippets_compile():
     """Snippets that need a running service (marked `python notest`) are run in spirit by test_service; here they
     must at least be valid Python that names real client methods."""
-    from replanner.client import Client
+    from replanner.apps.client import Client
 
     text = (ROOT / "README.md").read_text()
     blocks = re.findall(r"```python notest\n(.*?)```", text, flags=re.S)
@@ -68,7 +68,7 @@ def test_compose_file_parses_and_its_commands_exist():
 
     import yaml
 
-    from .service_helpers import replanner_cmd
+    from tests.service_helpers import replanner_cmd
 
     compose = yaml.safe_load((ROOT / "docker" / "compose.yaml").read_text())
     services = compose["services"]

@@ -7,11 +7,10 @@ import time
 
 import pytest
 
-from replanner.client import Client
+from replanner.apps.client import Client
 from replanner.config import TransportConfig
 from replanner.transport.session import make_config, open_session, zenoh_config_file
-
-from .service_helpers import Proc, free_port, replanner_cmd
+from tests.service_helpers import Proc, free_port, replanner_cmd
 
 pytestmark = pytest.mark.slow
 

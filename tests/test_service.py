@@ -12,18 +12,17 @@ import numpy as np
 import pytest
 import yaml
 
-from replanner.client import Client
+from replanner.apps.client import Client
 from replanner.config import parse_config
-from replanner.geometry import Box
-from replanner.robot import RobotModel
 from replanner.sim.cloud_publisher import CloudPublisher
 from replanner.sim.scene import PyBulletScene
-from replanner.transforms import make_transform
 from replanner.transport import messages as m
-from replanner.world import scene_from_config
-
-from .conftest import CONFIGS
-from .service_helpers import Stack, free_port, node_session, replanner_cmd
+from replanner.world.geometry import Box
+from replanner.world.robot import RobotModel
+from replanner.world.scene import scene_from_config
+from replanner.world.transforms import make_transform
+from tests.conftest import CONFIGS
+from tests.service_helpers import Stack, free_port, node_session, replanner_cmd
 
 A = [-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785]
 B = [1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785]
@@ -191,7 +190,7 @@ def test_blocked_path_is_replanned_without_collision(svc):
     mid = np.array(A) + 0.7 * (np.array(B) - np.array(A))
     c = svc.robot.link_pose(mid, "panda_hand")[:3, 3]
     time.sleep(0.3)
-    box = (Box((0.14, 0.14, 0.14)), make_transform(c))
+    box = (Box(size=(0.14, 0.14, 0.14)), make_transform(c))
     svc.camera.add_obstacle("intruder", *box)  # only the camera sees it: the service learns of it from clouds
     try:
         res = fut.wait(30)

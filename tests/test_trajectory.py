@@ -7,12 +7,12 @@ import pytest
 
 from replanner.bench import planning as bench
 from replanner.bench.scenes import add_table
-from replanner.collision import CollisionChecker
 from replanner.errors import InvalidInputError
-from replanner.planning import Planner
+from replanner.planning.planner import Planner
 from replanner.sim.scene import PyBulletScene
-from replanner.trajectory import TrajectoryError, TrajectoryGenerator, distance_to_polyline, progress_along
-from replanner.world import World
+from replanner.trajectory.generator import TrajectoryError, TrajectoryGenerator, distance_to_polyline, progress_along
+from replanner.world.collision import CollisionChecker
+from replanner.world.scene import World
 
 DT = 1e-3
 TOL = 1.001  # finite differences may exceed a limit by 0.1 % (rounding), never more

@@ -8,12 +8,12 @@ import fcl
 import numpy as np
 import pytest
 
-from replanner.collision import CollisionChecker
 from replanner.errors import InvalidInputError, UnknownNameError, WorldError
-from replanner.geometry import Box, Mesh, Sphere
-from replanner.occupancy import OccupancyMap, voxel_centers
-from replanner.transforms import make_transform
-from replanner.world import World
+from replanner.world.collision import CollisionChecker
+from replanner.world.geometry import Box, Mesh, Sphere
+from replanner.world.occupancy import OccupancyMap, voxel_centers
+from replanner.world.scene import World
+from replanner.world.transforms import make_transform
 
 
 def _voxel_distance(centers, res, p):
@@ -93,14 +93,14 @@ def test_world_edits_reach_the_checker(panda):
     q = panda.home
     hand = panda.link_pose(q, "panda_hand")[:3, 3]
     assert checker.is_valid(q)
-    world.add("box", Box((0.1, 0.1, 0.1)), make_transform(hand))
+    world.add("box", Box(size=(0.1, 0.1, 0.1)), make_transform(hand))
     assert checker.check(q).other == "box"
     world.move("box", make_transform(hand + [0, 0, 0.5]))
     assert checker.is_valid(q)
     world.move("box", make_transform(hand))
     world.remove("box")
     assert checker.is_valid(q)
-    world.add("ball", Sphere(0.05), make_transform(hand))
+    world.add("ball", Sphere(radius=0.05), make_transform(hand))
     world.add("mesh", Mesh(*_tetra(0.1)), make_transform(hand + [0, 0, 0.4]))
     assert checker.check(q).other == "ball"
     world.remove("ball")
@@ -119,9 +119,9 @@ def _tetra(s):
 
 def test_world_errors_say_what_to_change(panda):
     world = World(panda)
-    world.add("box", Box((0.1, 0.1, 0.1)), np.eye(4))
+    world.add("box", Box(size=(0.1, 0.1, 0.1)), np.eye(4))
     with pytest.raises(WorldError, match="already exists"):
-        world.add("box", Box((0.1, 0.1, 0.1)), np.eye(4))
+        world.add("box", Box(size=(0.1, 0.1, 0.1)), np.eye(4))
     with pytest.raises(UnknownNameError, match="unknown object 'boxx'.*box"):
         world.remove("boxx")
     with pytest.raises(UnknownNameError, match="panda_hand"):
@@ -131,7 +131,7 @@ def test_world_errors_say_what_to_change(panda):
     with pytest.raises(InvalidInputError, match="not a rigid transform"):
         world.move("box", bad)
     with pytest.raises(InvalidInputError, match=r"must be 3 finite numbers > 0"):
-        Box((0.1, -1.0, 0.1))
+        Box(size=(0.1, -1.0, 0.1))
     world.attach("box", "panda_hand", panda.home)
     with pytest.raises(WorldError, match="attached to panda_hand.*detach it first"):
         world.move("box", np.eye(4))
@@ -142,9 +142,9 @@ def test_world_errors_say_what_to_change(panda):
 
 def test_snapshots_do_not_change_after_edits(panda):
     world = World(panda)
-    world.add("a", Box((0.1, 0.1, 0.1)), np.eye(4))
+    world.add("a", Box(size=(0.1, 0.1, 0.1)), np.eye(4))
     before = world.snapshot()
-    world.add("b", Box((0.1, 0.1, 0.1)), np.eye(4))
+    world.add("b", Box(size=(0.1, 0.1, 0.1)), np.eye(4))
     world.set_occupancy(OccupancyMap.empty())
     assert list(before.objects) == ["a"] and before.occupancy is None
     assert sorted(world.objects) == ["a", "b"] and world.occupancy is not None
@@ -183,7 +183,7 @@ def test_octomap_writer_is_byte_identical_to_octomap(seed):
     """Our numpy writer of OctoMap's binary stream against OctoMap itself (octomap-python)."""
     import octomap
 
-    from replanner.occupancy import octomap_binary, octomap_payload
+    from replanner.world.occupancy import octomap_binary, octomap_payload
 
     rng = np.random.default_rng(seed)
     keys = np.unique(np.vstack([rng.integers(-300, 300, (2000, 3)), rng.integers(-5, 5, (500, 3))]), axis=0)

@@ -6,10 +6,10 @@ import time
 
 import numpy as np
 
-from ..collision import CollisionChecker
 from ..config import ReplannerConfig
-from ..robot import RobotModel
-from ..world import World
+from ..world.collision import CollisionChecker
+from ..world.robot import RobotModel
+from ..world.scene import World
 from .scenes import add_table, clutter_map
 from .stats import summary
 

@@ -7,14 +7,14 @@ import time
 
 import numpy as np
 
-from ..collision import CollisionChecker
 from ..config import ReplannerConfig
-from ..controller import Controller, Goal, State
-from ..driver import KinematicDriver
-from ..planning import Planner, PlanningError
-from ..robot import RobotModel
-from ..trajectory import TrajectoryGenerator
-from ..world import World
+from ..control.controller import Controller, Goal, State
+from ..control.driver import KinematicDriver
+from ..planning.planner import Planner, PlanningError
+from ..trajectory.generator import TrajectoryGenerator
+from ..world.collision import CollisionChecker
+from ..world.robot import RobotModel
+from ..world.scene import World
 from .scenes import add_table, clutter_map
 from .stats import summary
 

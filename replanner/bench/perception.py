@@ -7,12 +7,12 @@ import time
 import numpy as np
 
 from ..config import ReplannerConfig
-from ..geometry import Box
-from ..occupancy import voxel_keys
 from ..perception import CameraModel, CloudFrame, Perception, pose_from_config
-from ..robot import RobotModel
-from ..transforms import make_transform
-from ..world import World
+from ..world.geometry import Box
+from ..world.occupancy import voxel_keys
+from ..world.robot import RobotModel
+from ..world.scene import World
+from ..world.transforms import make_transform
 from .scenes import add_table, operator_boxes, tabletop_clutter
 from .stats import summary
 
@@ -102,7 +102,7 @@ def run(
 def clearing_frames(cfg, robot, sim, cam, sensor, per: Perception, box_frames: int = 10) -> dict:
     """A box stands in view for `box_frames` frames and is removed: frames until none of its voxels is left."""
     res = cfg.perception.resolution
-    box, pose = Box((0.12, 0.12, 0.3)), make_transform((0.7, 0.35, 0.15))  # on the table, in full view
+    box, pose = Box(size=(0.12, 0.12, 0.3)), make_transform((0.7, 0.35, 0.15))  # on the table, in full view
     sim.add("intruder", box, pose)
     stamp = max(s.last_stamp for s in per.sensors.values())
     q = robot.home

@@ -8,16 +8,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..collision import CollisionChecker
 from ..config import ReplannerConfig
 from ..errors import ReplannerError
-from ..geometry import Box, Cylinder, Shape
-from ..ik import IKError, solve_ik
-from ..planning import Planner, PlanningError
-from ..robot import RobotModel
-from ..trajectory import Trajectory, TrajectoryGenerator, distance_to_polyline
-from ..transforms import make_transform
-from ..world import World
+from ..planning.ik import IKError, solve_ik
+from ..planning.planner import Planner, PlanningError
+from ..trajectory.generator import Trajectory, TrajectoryGenerator, distance_to_polyline
+from ..world.collision import CollisionChecker
+from ..world.geometry import Box, Cylinder, Shape
+from ..world.robot import RobotModel
+from ..world.scene import World
+from ..world.transforms import make_transform
 from .scenes import TABLE_SIZE
 from .stats import summary
 
@@ -38,7 +38,7 @@ class Problem:
 
 def _yaw(q_xyzw, yaw: float):
     """Compose a rotation about the base z axis (yaw [rad]) before the tool orientation."""
-    from ..transforms import matrix_to_quat, quat_to_matrix
+    from ..world.transforms import matrix_to_quat, quat_to_matrix
 
     c, s = np.cos(yaw), np.sin(yaw)
     Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
@@ -46,7 +46,7 @@ def _yaw(q_xyzw, yaw: float):
 
 
 def _table():
-    return [("table", Box(TABLE_SIZE), make_transform((0.3, 0.0, -TABLE_SIZE[2] / 2)))]
+    return [("table", Box(size=TABLE_SIZE), make_transform((0.3, 0.0, -TABLE_SIZE[2] / 2)))]
 
 
 def _family_objects(family: str, rng: np.random.Generator):
@@ -60,9 +60,9 @@ def _family_objects(family: str, rng: np.random.Generator):
                     break
             h = rng.uniform(0.1, 0.4)
             if rng.random() < 0.5:
-                shape = Box((rng.uniform(0.06, 0.2), rng.uniform(0.06, 0.2), h))
+                shape = Box(size=(rng.uniform(0.06, 0.2), rng.uniform(0.06, 0.2), h))
             else:
-                shape = Cylinder(rng.uniform(0.03, 0.08), h)
+                shape = Cylinder(radius=rng.uniform(0.03, 0.08), length=h)
             objs.append((f"obj{k}", shape, make_transform((xy[0], xy[1], h / 2), (0, 0, np.sin(rng.uniform(0, 1)), 1))))
         return objs, None
     if family == "shelf":
@@ -70,13 +70,13 @@ def _family_objects(family: str, rng: np.random.Generator):
         depth, half_w, t = 0.3, 0.48, 0.02
         cx = x0 + depth / 2
         objs += [
-            ("shelf_back", Box((t, 2 * half_w, 0.74)), make_transform((x0 + depth, 0, 0.37))),
-            ("shelf_left", Box((depth, t, 0.74)), make_transform((cx, -half_w, 0.37))),
-            ("shelf_right", Box((depth, t, 0.74)), make_transform((cx, half_w, 0.37))),
-            ("shelf_mid", Box((depth, 2 * half_w, t)), make_transform((cx, 0, 0.36))),
-            ("shelf_top", Box((depth, 2 * half_w, t)), make_transform((cx, 0, 0.73))),
-            ("shelf_div1", Box((depth, t, 0.72)), make_transform((cx, -0.16, 0.37))),
-            ("shelf_div2", Box((depth, t, 0.72)), make_transform((cx, 0.16, 0.37))),
+            ("shelf_back", Box(size=(t, 2 * half_w, 0.74)), make_transform((x0 + depth, 0, 0.37))),
+            ("shelf_left", Box(size=(depth, t, 0.74)), make_transform((cx, -half_w, 0.37))),
+            ("shelf_right", Box(size=(depth, t, 0.74)), make_transform((cx, half_w, 0.37))),
+            ("shelf_mid", Box(size=(depth, 2 * half_w, t)), make_transform((cx, 0, 0.36))),
+            ("shelf_top", Box(size=(depth, 2 * half_w, t)), make_transform((cx, 0, 0.73))),
+            ("shelf_div1", Box(size=(depth, t, 0.72)), make_transform((cx, -0.16, 0.37))),
+            ("shelf_div2", Box(size=(depth, t, 0.72)), make_transform((cx, 0.16, 0.37))),
         ]
         goals = [(np.array([x0 + 0.1, y, z]), FORWARD, 0.3) for y in (-0.32, 0.0, 0.32) for z in (0.18, 0.54)]
         return objs, goals
@@ -85,11 +85,11 @@ def _family_objects(family: str, rng: np.random.Generator):
         c = np.array([rng.uniform(0.45, 0.6), y])
         w, d, h, t = 0.32, 0.36, 0.22, 0.015
         objs += [
-            ("bin_floor", Box((w, d, t)), make_transform((c[0], c[1], t / 2))),
-            ("bin_x0", Box((t, d, h)), make_transform((c[0] - w / 2, c[1], h / 2))),
-            ("bin_x1", Box((t, d, h)), make_transform((c[0] + w / 2, c[1], h / 2))),
-            ("bin_y0", Box((w, t, h)), make_transform((c[0], c[1] - d / 2, h / 2))),
-            ("bin_y1", Box((w, t, h)), make_transform((c[0], c[1] + d / 2, h / 2))),
+            ("bin_floor", Box(size=(w, d, t)), make_transform((c[0], c[1], t / 2))),
+            ("bin_x0", Box(size=(t, d, h)), make_transform((c[0] - w / 2, c[1], h / 2))),
+            ("bin_x1", Box(size=(t, d, h)), make_transform((c[0] + w / 2, c[1], h / 2))),
+            ("bin_y0", Box(size=(w, t, h)), make_transform((c[0], c[1] - d / 2, h / 2))),
+            ("bin_y1", Box(size=(w, t, h)), make_transform((c[0], c[1] + d / 2, h / 2))),
         ]
         return objs, [(np.array([c[0], c[1], 0.11]), DOWN, np.pi)]
     if family == "cage":
@@ -97,14 +97,14 @@ def _family_objects(family: str, rng: np.random.Generator):
         hw, hd, h, r = 0.32, 0.3, 0.55, 0.012
         corners = [(c[0] + sx * hd, c[1] + sy * hw) for sx in (-1, 1) for sy in (-1, 1)]
         for k, (x, y) in enumerate(corners):
-            objs.append((f"post{k}", Cylinder(r, h), make_transform((x, y, h / 2))))
+            objs.append((f"post{k}", Cylinder(radius=r, length=h), make_transform((x, y, h / 2))))
         for k, z in enumerate((0.28, h)):
             objs += [
-                (f"rail{k}a", Box((2 * hd, 2 * r, 2 * r)), make_transform((c[0], c[1] - hw, z))),
-                (f"rail{k}b", Box((2 * hd, 2 * r, 2 * r)), make_transform((c[0], c[1] + hw, z))),
-                (f"rail{k}c", Box((2 * r, 2 * hw, 2 * r)), make_transform((c[0] + hd, c[1], z))),
+                (f"rail{k}a", Box(size=(2 * hd, 2 * r, 2 * r)), make_transform((c[0], c[1] - hw, z))),
+                (f"rail{k}b", Box(size=(2 * hd, 2 * r, 2 * r)), make_transform((c[0], c[1] + hw, z))),
+                (f"rail{k}c", Box(size=(2 * r, 2 * hw, 2 * r)), make_transform((c[0] + hd, c[1], z))),
             ]
-        objs.append(("top_bar", Box((2 * r, 2 * hw, 2 * r)), make_transform((c[0], c[1], h))))
+        objs.append(("top_bar", Box(size=(2 * r, 2 * hw, 2 * r)), make_transform((c[0], c[1], h))))
         return objs, [
             (np.array([c[0] + 0.05 * s, c[1] + 0.12 * t, 0.15]), DOWN, np.pi) for s in (-1, 1) for t in (-1, 1)
         ]

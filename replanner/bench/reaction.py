@@ -8,10 +8,10 @@ import numpy as np
 import pybullet as pb
 
 from ..config import ReplannerConfig, parse_config
-from ..controller import Goal, GoalStatus, State
-from ..geometry import Box
+from ..control.controller import Goal, GoalStatus, State
 from ..sim.kinematic import KinematicSim
-from ..transforms import make_transform
+from ..world.geometry import Box
+from ..world.transforms import make_transform
 from .scenes import TABLE_SIZE
 from .stats import summary
 
@@ -41,7 +41,7 @@ def run(
     """Each run drops a box where the arm will be `time_to_contact` [s] later (seeded), and measures."""
     cfg = _small_cameras(cfg, 320, 240)
     rng = np.random.default_rng(seed)
-    table = ("table", Box(TABLE_SIZE), make_transform((0.3, 0.0, -TABLE_SIZE[2] / 2)))
+    table = ("table", Box(size=TABLE_SIZE), make_transform((0.3, 0.0, -TABLE_SIZE[2] / 2)))
     sim = KinematicSim(cfg, [table], camera_rate=camera_rate, seed=seed).start()
     ctl = sim.controller
     rows = []
@@ -77,7 +77,7 @@ def run(
             center = sim.robot.link_pose(q_then, "panda_hand")[:3, 3] + rng.uniform(-0.03, 0.03, 3)
             lo[:], hi[:] = center - size / 2 - 0.011, center + size / 2 + 0.011
             seen["drop"] = time.monotonic()
-            sim.add_obstacle("intruder", Box((size, size, size)), make_transform(center))
+            sim.add_obstacle("intruder", Box(size=(size, size, size)), make_transform(center))
             res = h.wait(30)
             sim.frame_hooks.remove(hook)
             trans = ctl.transitions[n_before:]

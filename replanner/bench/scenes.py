@@ -5,17 +5,17 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from ..geometry import Box
-from ..occupancy import OccupancyMap, voxel_keys
-from ..transforms import make_transform
-from ..world import World
+from ..world.geometry import Box
+from ..world.occupancy import OccupancyMap, voxel_keys
+from ..world.scene import World
+from ..world.transforms import make_transform
 
 TABLE_SIZE = (1.6, 1.4, 0.05)
 
 
 def add_table(world: World, name: str = "table", top_z: float = 0.0, center_xy=(0.3, 0.0)) -> None:
     """A table whose top surface is at `top_z` [m], under and around the robot base."""
-    world.add(name, Box(TABLE_SIZE), make_transform((center_xy[0], center_xy[1], top_z - TABLE_SIZE[2] / 2)))
+    world.add(name, Box(size=TABLE_SIZE), make_transform((center_xy[0], center_xy[1], top_z - TABLE_SIZE[2] / 2)))
 
 
 def clutter_voxels(rng: np.random.Generator, target: int, resolution: float = 0.01) -> np.ndarray:
@@ -68,8 +68,8 @@ def operator_boxes(t: float, start=(1.0, -0.95), end=(-0.2, -0.95), reach: float
     q = (0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2))
     arm = p + n * (0.15 + reach / 2)
     return {
-        "operator_torso": (Box((0.3, 0.45, 0.8)), make_transform((p[0], p[1], 0.75), q)),
-        "operator_arm": (Box((reach, 0.08, 0.08)), make_transform((arm[0], arm[1], 0.35), q)),
+        "operator_torso": (Box(size=(0.3, 0.45, 0.8)), make_transform((p[0], p[1], 0.75), q)),
+        "operator_arm": (Box(size=(reach, 0.08, 0.08)), make_transform((arm[0], arm[1], 0.35), q)),
     }
 
 
@@ -80,7 +80,7 @@ def tabletop_clutter(rng: np.random.Generator, n: int = 3) -> dict[str, tuple[Bo
         size = tuple(rng.uniform(0.06, 0.2, 3))
         xy = (rng.uniform(0.35, 0.75), rng.uniform(-0.5, 0.5))
         out[f"clutter{i}"] = (
-            Box(size),
+            Box(size=size),
             make_transform((xy[0], xy[1], size[2] / 2), (0, 0, np.sin(rng.uniform(0, 1.5)), 1)),
         )
     return out

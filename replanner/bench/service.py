@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..client import Client, ServiceError
+from ..apps.client import Client, ServiceError
 from ..config import ReplannerConfig
 from ..errors import ReplannerError
 from ..transport import messages as m

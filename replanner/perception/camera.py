@@ -8,7 +8,7 @@ import numpy as np
 
 from ..config import PoseConfig, SensorConfig
 from ..errors import InvalidInputError
-from ..transforms import make_transform
+from ..world.transforms import make_transform
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:

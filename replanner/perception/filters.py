@@ -12,8 +12,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from ..geometry import Box, ConvexHull, Cylinder, Mesh, Shape, Sphere
-from ..world import WorldSnapshot
+from ..world.geometry import Box, ConvexHull, Cylinder, Mesh, Shape, Sphere
+from ..world.scene import WorldSnapshot
 
 
 def finite_in_range(rows: np.ndarray, origin, min_range: float, max_range: float) -> np.ndarray:

@@ -19,14 +19,14 @@ import numpy as np
 
 from ..config import PerceptionConfig, SensorConfig
 from ..errors import InvalidInputError
-from ..jointstate import JointStateBuffer
-from ..occupancy import OccupancyMap
-from ..robot import RobotModel
-from ..transforms import check_transform
-from ..world import World
+from ..world.occupancy import OccupancyMap
+from ..world.robot import RobotModel
+from ..world.scene import World
+from ..world.transforms import check_transform
 from .camera import CameraModel, pose_from_config
 from .filters import SelfFilter, VoxelGrid, finite_in_range, statistical_outliers
 from .grid import LogOddsGrid
+from .jointstate import JointStateBuffer
 
 log = logging.getLogger(__name__)
 

@@ -9,15 +9,15 @@ import time
 
 import numpy as np
 
-from ..config import ReplannerConfig
 from ..errors import ConfigError, InvalidInputError
-from ..geometry import Box, Shape
 from ..perception import CameraModel, pose_from_config
-from ..robot import RobotModel
-from ..transforms import make_transform
 from ..transport import messages as m
 from ..transport.keys import Keys
+from ..world.geometry import Box, Shape
+from ..world.robot import RobotModel
+from ..world.transforms import make_transform
 from .camera import PyBulletDepthCamera
+from .config import CellConfig
 from .scene import PyBulletScene
 
 log = logging.getLogger(__name__)
@@ -38,7 +38,7 @@ class CloudPublisher:
 
     def __init__(
         self,
-        cfg: ReplannerConfig,
+        cfg: CellConfig,
         session,
         static=(),
         rate_hz: float = 10.0,
@@ -68,7 +68,7 @@ class CloudPublisher:
 
             oc = cfg.sim.operator
             self._op = create_capsule(self.scene.client, oc.arm_radius, oc.arm_length)
-            self._part = self.scene.add("part", Box(tuple(cfg.sim.task.part_size)), make_transform((0, 0, -5.0)))
+            self._part = self.scene.add("part", Box(size=tuple(cfg.sim.task.part_size)), make_transform((0, 0, -5.0)))
         self._js: tuple[float, np.ndarray, tuple | None] | None = None  # stamp, q, (operator, part)
         self._lock = threading.Lock()
         self._stop = threading.Event()

@@ -13,16 +13,16 @@ import time
 
 import numpy as np
 
-from ..collision import CollisionChecker
 from ..config import ReplannerConfig
-from ..controller import Controller
-from ..driver import KinematicDriver
-from ..geometry import Shape
+from ..control.controller import Controller
+from ..control.driver import KinematicDriver
 from ..perception import CameraModel, CloudFrame, CloudRejected, Perception, pose_from_config
-from ..planning import Planner
-from ..robot import RobotModel
-from ..trajectory import TrajectoryGenerator
-from ..world import World
+from ..planning.planner import Planner
+from ..trajectory.generator import TrajectoryGenerator
+from ..world.collision import CollisionChecker
+from ..world.geometry import Shape
+from ..world.robot import RobotModel
+from ..world.scene import World
 from .camera import PyBulletDepthCamera
 from .scene import PyBulletScene
 
@@ -65,7 +65,7 @@ class KinematicSim:
             sensors = [s.name for s in cfg.perception.sensors]
         self.process = None
         if cfg.controller.planning_process:
-            from ..planproc import PlanningProcess
+            from ..planning.process import PlanningProcess
 
             self.process = PlanningProcess(cfg, seed=seed)
         self.controller = Controller(

@@ -19,15 +19,15 @@ import time
 import numpy as np
 import pybullet as pb
 
-from ..config import OperatorConfig, ReplannerConfig
-from ..driver import SampledTrajectory, Timeline
+from ..control.driver import SampledTrajectory, Timeline
 from ..errors import InvalidInputError
-from ..geometry import Box
-from ..robot import RobotModel
-from ..transforms import make_transform, matrix_to_quat
 from ..transport import messages as m
 from ..transport.keys import Keys
-from ..world import scene_from_config
+from ..world.geometry import Box
+from ..world.robot import RobotModel
+from ..world.scene import scene_from_config
+from ..world.transforms import make_transform, matrix_to_quat
+from .config import CellConfig, OperatorConfig
 from .scene import PyBulletScene
 
 log = logging.getLogger(__name__)
@@ -130,7 +130,7 @@ class PhysicsSim:
 
     def __init__(
         self,
-        cfg: ReplannerConfig,
+        cfg: CellConfig,
         session,
         *,
         seed: int = 0,
@@ -162,7 +162,7 @@ class PhysicsSim:
         self.timeline = Timeline(q0)
         # the part: a box resting on the first bin
         task = self.sc.task
-        self.part_shape = Box(tuple(task.part_size))
+        self.part_shape = Box(size=tuple(task.part_size))
         self.part = self.scene.add("part", self.part_shape, make_transform(PARK))
         self.part_pose = self._rest_on(task.bins[0], self.part_shape)
         set_pose(self.client, self.part, self.part_pose)

@@ -5,17 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
-from ..geometry import Box, Cylinder, Shape, Sphere
-from ..robot import RobotModel
-from ..transforms import make_transform, matrix_to_quat
+from ..world.geometry import Box, Cylinder, Shape, Sphere
+from ..world.robot import RobotModel
+from ..world.transforms import make_transform, matrix_to_quat
 
 
 def room_geometry() -> list[tuple[str, Shape, np.ndarray]]:
     """Floor 0.75 m below the table top and walls 3 m away: what the cameras see behind everything."""
     return [
-        ("floor", Box((10.0, 10.0, 0.1)), make_transform((0.0, 0.0, FLOOR_Z - 0.05))),
-        ("wall_back", Box((0.1, 10.0, 4.0)), make_transform((-3.0, 0.0, 1.0))),
-        ("wall_left", Box((10.0, 0.1, 4.0)), make_transform((0.0, -3.0, 1.0))),
+        ("floor", Box(size=(10.0, 10.0, 0.1)), make_transform((0.0, 0.0, FLOOR_Z - 0.05))),
+        ("wall_back", Box(size=(0.1, 10.0, 4.0)), make_transform((-3.0, 0.0, 1.0))),
+        ("wall_left", Box(size=(10.0, 0.1, 4.0)), make_transform((0.0, -3.0, 1.0))),
     ]
 
 

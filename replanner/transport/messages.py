@@ -12,8 +12,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..errors import InvalidInputError
-from ..geometry import Box, Cylinder, Mesh, Sphere
-from ..transforms import make_transform
+from ..world.geometry import Box, Cylinder, Mesh, Sphere
+from ..world.transforms import make_transform
 
 
 class DecodeError(InvalidInputError):
@@ -99,11 +99,11 @@ ShapeMsg = Annotated[BoxShape | CylinderShape | SphereShape | MeshShape, Field(d
 
 def shape_from(msg) -> Box | Cylinder | Sphere | Mesh:
     if isinstance(msg, BoxShape):
-        return Box(tuple(msg.size))
+        return Box(size=tuple(msg.size))
     if isinstance(msg, CylinderShape):
-        return Cylinder(msg.radius, msg.length)
+        return Cylinder(radius=msg.radius, length=msg.length)
     if isinstance(msg, SphereShape):
-        return Sphere(msg.radius)
+        return Sphere(radius=msg.radius)
     return Mesh(np.asarray(msg.vertices, float), np.asarray(msg.faces, np.int64))
 
 

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 import fcl
 import numpy as np
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
 from .geometry import Shape, bounding_radius, padded_geometry
 from .robot import RobotModel
-from .world import World, WorldSnapshot
+from .scene import World, WorldSnapshot
 
 log = logging.getLogger(__name__)
 

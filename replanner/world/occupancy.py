@@ -13,7 +13,7 @@ import fcl
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
 
 _OCTOMAP_HEADER_END = b"data\n"
 

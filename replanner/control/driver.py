@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .trajectory import Trajectory
+from ..trajectory.generator import Trajectory
 
 log = logging.getLogger(__name__)
 
@@ -137,7 +137,7 @@ class SampledTrajectory:
     @classmethod
     def from_message(cls, data: bytes, joint_names) -> tuple[float, SampledTrajectory]:
         """(start [s], trajectory) of a JointTrajectory CDR message; raises InvalidInputError."""
-        from .transport.messages import decode_trajectory
+        from ..transport.messages import decode_trajectory
 
         start, t, q, qd, qdd = decode_trajectory(data, joint_names)
         return start, cls(t, q, qd, qdd)

@@ -20,10 +20,10 @@ from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
 
-from .collision import CollisionChecker, Contact
-from .errors import InvalidInputError, ReplannerError
+from ..errors import InvalidInputError, ReplannerError
+from ..world.collision import CollisionChecker, Contact
+from ..world.transforms import make_transform
 from .ik import IKError, solve_ik
-from .transforms import make_transform
 
 log = logging.getLogger(__name__)
 

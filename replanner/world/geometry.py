@@ -9,10 +9,10 @@ import fcl
 import numpy as np
 import trimesh
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Box:
     """Axis-aligned box centred on its frame; `size` = full edge lengths (x, y, z) [m]."""
 
@@ -22,9 +22,9 @@ class Box:
         _check_positive("Box.size", self.size, 3)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Cylinder:
-    """Cylinder along the frame's z axis, centred on the frame [m]."""
+    """Cylinder along the frame's z axis, centred on the frame: Cylinder(radius=[m], length=[m]) (keywords only)."""
 
     radius: float
     length: float
@@ -33,7 +33,7 @@ class Cylinder:
         _check_positive("Cylinder radius/length", (self.radius, self.length), 2)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Sphere:
     """Sphere centred on the frame [m]."""
 
@@ -118,11 +118,11 @@ def padded(shape: Shape, padding: float) -> Shape:
     if padding <= 0:
         return shape
     if isinstance(shape, Sphere):
-        return Sphere(shape.radius + padding)
+        return Sphere(radius=shape.radius + padding)
     if isinstance(shape, Box):
-        return Box(tuple(s + 2 * padding for s in shape.size))
+        return Box(size=tuple(s + 2 * padding for s in shape.size))
     if isinstance(shape, Cylinder):
-        return Cylinder(shape.radius + padding, shape.length + 2 * padding)
+        return Cylinder(radius=shape.radius + padding, length=shape.length + 2 * padding)
     if isinstance(shape, ConvexHull) or (isinstance(shape, Mesh) and shape.convex):
         pts = (shape.vertices[:, None, :] + padding * _padding_directions()[None]).reshape(-1, 3)
         return ConvexHull.of_points(pts)

@@ -23,12 +23,12 @@ from enum import Enum
 import numpy as np
 from transitions import Machine
 
-from .collision import CollisionChecker
-from .config import ControllerConfig
-from .errors import InvalidInputError, ReplannerError, UnknownNameError
-from .planning import GoalInvalid, JointGoal, Planner, PlanningError, PoseGoal, StartInvalid
-from .robot import RobotModel
-from .trajectory import Trajectory, TrajectoryError, TrajectoryGenerator
+from ..config import ControllerConfig
+from ..errors import InvalidInputError, ReplannerError, UnknownNameError
+from ..planning.planner import GoalInvalid, JointGoal, Planner, PlanningError, PoseGoal, StartInvalid
+from ..trajectory.generator import Trajectory, TrajectoryError, TrajectoryGenerator
+from ..world.collision import CollisionChecker
+from ..world.robot import RobotModel
 
 log = logging.getLogger(__name__)
 

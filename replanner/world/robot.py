@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import yourdfpy
 
-from .config import RobotConfig
-from .errors import InvalidInputError, RobotModelError, UnknownNameError
+from ..config import RobotConfig
+from ..errors import InvalidInputError, RobotModelError, UnknownNameError
 from .geometry import Box, ConvexHull, Cylinder, Mesh, Shape, Sphere
 from .selfcollision import SelfClearanceTables, default_cache_dir
 
@@ -323,11 +323,11 @@ class RobotModel:
                 g = c.geometry
                 T = np.eye(4) if c.origin is None else np.asarray(c.origin, dtype=float)
                 if g.box is not None:
-                    shape: Shape = Box(tuple(float(s) for s in g.box.size))
+                    shape: Shape = Box(size=tuple(float(s) for s in g.box.size))
                 elif g.cylinder is not None:
-                    shape = Cylinder(float(g.cylinder.radius), float(g.cylinder.length))
+                    shape = Cylinder(radius=float(g.cylinder.radius), length=float(g.cylinder.length))
                 elif g.sphere is not None:
-                    shape = Sphere(float(g.sphere.radius))
+                    shape = Sphere(radius=float(g.sphere.radius))
                 elif g.mesh is not None:
                     path = _resolve_mesh(g.mesh.filename, urdf_dir)
                     scale = 1.0 if g.mesh.scale is None else np.asarray(g.mesh.scale, dtype=float)

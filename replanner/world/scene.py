@@ -16,7 +16,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from .errors import InvalidInputError, UnknownNameError, WorldError
+from ..errors import InvalidInputError, UnknownNameError, WorldError
 from .geometry import Shape
 from .occupancy import OccupancyMap
 from .robot import RobotModel
@@ -292,11 +292,11 @@ def scene_from_config(cfg) -> list[tuple[str, Shape, np.ndarray]]:
     out = []
     for o in cfg.scene:
         if o.type == "box":
-            shape = Box(tuple(o.size))
+            shape = Box(size=tuple(o.size))
         elif o.type == "cylinder":
-            shape = Cylinder(o.radius, o.length)
+            shape = Cylinder(radius=o.radius, length=o.length)
         else:
-            shape = Sphere(o.radius)
+            shape = Sphere(radius=o.radius)
         out.append((o.name, shape, make_transform(o.position, o.quat_xyzw)))
     return out
 

@@ -14,8 +14,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..sim.config import TaskConfig
 from .client import Client, ServiceError
-from .config import TaskConfig
 
 log = logging.getLogger(__name__)
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import ruckig
 
-from .errors import InvalidInputError, ReplannerError
+from ..errors import InvalidInputError, ReplannerError
 
 log = logging.getLogger(__name__)
 

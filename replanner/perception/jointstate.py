@@ -8,7 +8,7 @@ from collections import deque
 
 import numpy as np
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
 
 
 class JointStateBuffer:

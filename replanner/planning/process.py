@@ -20,9 +20,9 @@ from multiprocessing.connection import Connection
 
 import numpy as np
 
-from .errors import ReplannerError
-from .planning import GoalInvalid, NoSolution, PlanningCanceled, PlanningError, PlanResult, StartInvalid
-from .trajectory import Trajectory, TrajectoryError
+from ..errors import ReplannerError
+from ..trajectory.generator import Trajectory, TrajectoryError
+from .planner import GoalInvalid, NoSolution, PlanningCanceled, PlanningError, PlanResult, StartInvalid
 
 log = logging.getLogger(__name__)
 
@@ -47,14 +47,14 @@ class _Request:
 
 
 def _serve(conn, cancel_conn) -> None:
-    """The child: `python -m replanner.planproc <request fd> <cancel fd>`."""
-    from .collision import CollisionChecker
-    from .config import parse_config
-    from .occupancy import OccupancyMap
-    from .planning import Planner
-    from .robot import RobotModel
-    from .trajectory import TrajectoryGenerator
-    from .world import World
+    """The child: `python -m replanner.planning.process <request fd> <cancel fd>`."""
+    from ..config import parse_config
+    from ..trajectory.generator import TrajectoryGenerator
+    from ..world.collision import CollisionChecker
+    from ..world.occupancy import OccupancyMap
+    from ..world.robot import RobotModel
+    from ..world.scene import World
+    from .planner import Planner
 
     cfg_data, seed = conn.recv()
     cfg = parse_config(cfg_data)
@@ -125,7 +125,7 @@ def _serve(conn, cancel_conn) -> None:
 class PlanningProcess:
     """A planner in its own process. `plan` blocks the calling thread (not the GIL) until the answer comes.
 
-    The child is `python -m replanner.planproc` (not multiprocessing's spawn, which would re-run the caller's
+    The child is `python -m replanner.planning.process` (not multiprocessing's spawn, which would re-run the caller's
     main script); requests and cancels travel over two inherited socket pairs.
 
     Args:
@@ -137,7 +137,9 @@ class PlanningProcess:
         req_parent, req_child = socket.socketpair()
         cancel_parent, cancel_child = socket.socketpair()
         fds = (req_child.fileno(), cancel_child.fileno())
-        self._proc = subprocess.Popen([sys.executable, "-m", "replanner.planproc", *map(str, fds)], pass_fds=fds)
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "replanner.planning.process", *map(str, fds)], pass_fds=fds
+        )
         req_child.close()
         cancel_child.close()
         self._conn = Connection(req_parent.detach())
@@ -145,7 +147,7 @@ class PlanningProcess:
         self._lock = threading.Lock()
         self._jobs = itertools.count(1)
         self._job = 0
-        self._conn.send((cfg.model_dump(mode="python"), seed))
+        self._conn.send((cfg.core().model_dump(mode="python"), seed))
         if not self._conn.poll(start_timeout):
             self.close()
             raise ReplannerError(f"the planning process did not start within {start_timeout} s")

@@ -9,9 +9,9 @@ import time
 import uuid
 from collections.abc import Callable
 
-from .errors import ReplannerError
-from .transport import messages as m
-from .transport.keys import Keys
+from ..errors import ReplannerError
+from ..transport import messages as m
+from ..transport.keys import Keys
 
 
 class ServiceError(ReplannerError):

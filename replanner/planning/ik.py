@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InvalidInputError, ReplannerError
-from .transforms import make_transform
+from ..errors import InvalidInputError, ReplannerError
+from ..world.transforms import make_transform
 
 
 class IKError(ReplannerError):
