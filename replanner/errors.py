@@ -4,7 +4,21 @@ from __future__ import annotations
 
 
 class ReplannerError(Exception):
-    """Root of every error replanner raises on purpose."""
+    """Root of every error replanner raises on purpose.
+
+    Errors keep their data across a process boundary: pickling restores the class, the message and every
+    attribute (a contact, a solver's answer), whatever arguments the subclass's constructor takes.
+    """
+
+    def __reduce__(self):
+        return _rebuild, (type(self), self.args, self.__dict__)
+
+
+def _rebuild(cls: type, args: tuple, state: dict) -> ReplannerError:
+    err = cls.__new__(cls)
+    err.args = args
+    err.__dict__.update(state)
+    return err
 
 
 class ConfigError(ReplannerError, ValueError):
@@ -40,3 +54,7 @@ class InvalidInputError(ReplannerError, ValueError):
 
 class WorldError(ReplannerError):
     """A scene edit cannot be applied (duplicate name, attaching twice, ...)."""
+
+
+class TrajectoryError(ReplannerError):
+    """A path cannot be timed, spliced or braked as asked; the message says why."""

@@ -1,4 +1,4 @@
-"""The service commands of `replanner`: serve, robot, goal, cancel, status, scene (see docs/protocol.md)."""
+"""The service commands of `replanner`: serve, router, robot, goal, cancel, status, scene (see docs/protocol.md)."""
 
 from __future__ import annotations
 
@@ -6,40 +6,33 @@ import json
 import time
 
 import typer
-from rich.console import Console
 
-from replanner.config import ReplannerConfig
 from replanner.errors import ConfigError, ReplannerError
 
-CONFIG_HELP = "Robot config: a YAML file, or the name of a shipped profile (panda, iiwa)."
-MODE_HELP = "Zenoh mode: peer (default), client or router."
-CONNECT_HELP = "Zenoh endpoint to connect to, e.g. tcp/10.0.0.2:7447 (repeatable)."
-LISTEN_HELP = "Zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7448 (repeatable)."
-ZCONF_HELP = "A Zenoh JSON5 config file, or a shipped one: client, router (the flags above still override it)."
+from .cli_common import (
+    ConfigOpt,
+    ConnectOpt,
+    ListenOpt,
+    ModeOpt,
+    RobotOpt,
+    ZenohConfigOpt,
+    ZenohFlags,
+    fail,
+    print_json,
+    resolve_config,
+)
 
+app = typer.Typer()  # merged into the root app by cli.py (no name: its commands sit at the top level)
 scene_app = typer.Typer(
     help="Static objects of the service's world: list, add, move, remove, attach, detach.", no_args_is_help=True
 )
+app.add_typer(scene_app, name="scene")
+
+POSITION_HELP = "Position 'x,y,z' [m] in the robot base frame."
+QUAT_HELP = "Orientation quaternion 'qx,qy,qz,qw'."
 
 
-def _fail(err: Exception, code: int = 2):
-    Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {err}", highlight=False)
-    raise typer.Exit(code)
-
-
-def _config(config: str) -> ReplannerConfig:
-    from .cli import resolve_config
-
-    return resolve_config(config)
-
-
-def _zenoh(cfg: ReplannerConfig, role: str, mode, connect, listen, zenoh_config):
-    from replanner.transport.session import make_config
-
-    return make_config(cfg.transport, role, mode, connect or (), listen or (), zenoh_config)
-
-
-def floats(text: str, what: str, n: int | None = None) -> list[float]:
+def floats(text: str, what: str, n: int | tuple[int, ...] | None = None) -> list[float]:
     """'0.1, -0.2 0.3' -> [0.1, -0.2, 0.3]; a clear error names the flag and what it needs."""
     try:
         values = [float(x) for x in text.replace(",", " ").split()]
@@ -50,15 +43,15 @@ def floats(text: str, what: str, n: int | None = None) -> list[float]:
     return values
 
 
-class _Connection:
-    """An open session and client for the CLI's one-shot commands."""
+class Connection:
+    """An open session and client for the CLI's one-shot commands (goal, cancel, status, scene)."""
 
-    def __init__(self, config, robot, mode, connect, listen, zenoh_config, timeout):
+    def __init__(self, config: str, robot: str | None, zenoh: ZenohFlags, timeout: float = 5.0):
         from replanner.apps.client import Client
         from replanner.transport.session import open_session
 
-        self.cfg = _config(config)
-        self.session = open_session(_zenoh(self.cfg, "node", mode, connect, listen, zenoh_config))
+        self.cfg = resolve_config(config)
+        self.session = open_session(zenoh.config(self.cfg.transport, "node"))
         self.client = Client(self.session, robot or self.cfg.robot.name, self.cfg.transport.namespace, timeout)
 
     def __enter__(self):
@@ -69,222 +62,213 @@ class _Connection:
         self.session.close()
 
 
-def _print(obj) -> None:
-    print(json.dumps(obj, indent=2))
+@app.command("serve")
+def serve(
+    config: ConfigOpt = "panda",
+    no_cameras: bool = typer.Option(
+        False,
+        "--no-cameras",
+        help="Ignore the configured cameras: plan against static objects only "
+        "(nothing watches for people; for kinematic tries).",
+    ),
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="Log every transition and rejection."),
+    mode: ModeOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """Run the controller as a Zenoh service (by default a peer listening on tcp/127.0.0.1:7448)."""
+    import logging
 
+    from . import serve as serve_mod
 
-def register(app: typer.Typer) -> None:
-    app.add_typer(scene_app, name="scene")
-
-    @app.command("serve")
-    def serve(
-        config: str = typer.Option("panda", "--config", "-c", help=CONFIG_HELP),
-        mode: str | None = typer.Option(None, "--mode", "-m", help=MODE_HELP),
-        connect: list[str] | None = typer.Option(None, "--connect", "-e", help=CONNECT_HELP),
-        listen: list[str] | None = typer.Option(None, "--listen", "-l", help=LISTEN_HELP),
-        zenoh_config: str | None = typer.Option(None, "--zenoh-config", help=ZCONF_HELP),
-        no_cameras: bool = typer.Option(
-            False,
-            "--no-cameras",
-            help="Ignore the configured cameras: plan against static objects only "
-            "(nothing watches for people; for kinematic tries).",
-        ),
-        verbose: bool = typer.Option(False, "--verbose", "-v", help="Log every transition and rejection."),
-    ) -> None:
-        """Run the controller as a Zenoh service (by default a peer listening on tcp/127.0.0.1:7448)."""
-        import logging
-
-        from . import serve as serve_mod
-
-        logging.getLogger().setLevel(logging.INFO if verbose else logging.WARNING)
-        try:
-            cfg = _config(config)
-            if no_cameras:
-                cfg = cfg.model_copy(update={"perception": None})
-            serve_mod.run(cfg, _zenoh(cfg, "service", mode, connect, listen, zenoh_config))
-        except ReplannerError as err:
-            _fail(err)
-
-    @app.command("router")
-    def router(
-        listen: list[str] | None = typer.Option(None, "--listen", "-l", help=LISTEN_HELP),
-        zenoh_config: str = typer.Option("router", "--zenoh-config", help=ZCONF_HELP),
-    ) -> None:
-        """A Zenoh router in this Python process (where there is no zenohd): the other processes connect to
-        it in client mode, e.g. `replanner serve -c demo --zenoh-config client -e tcp/127.0.0.1:7447`."""
-        import signal
-        import threading
-
-        from replanner.config import TransportConfig
-        from replanner.transport.session import make_config, open_session
-
-        try:
-            conf = make_config(TransportConfig(), "service", "router", (), listen or (), zenoh_config)
-            session = open_session(conf)
-        except ReplannerError as err:
-            _fail(err)
-        stop = threading.Event()
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
-        print(f"replanner: Zenoh router listening on {conf.get_json('listen/endpoints')} (Ctrl-C stops)", flush=True)
-        try:
-            while not stop.wait(0.5):
-                pass
-        except KeyboardInterrupt:
-            pass
-        session.close()
-
-    @app.command("robot")
-    def robot(
-        kinematic: bool = typer.Option(False, "--kinematic", help="Follow trajectories exactly (no physics)."),
-        config: str = typer.Option("panda", "--config", "-c", help=CONFIG_HELP),
-        joints: str | None = typer.Option(None, "--joints", help="Start configuration [rad]; default: home."),
-        mode: str | None = typer.Option(None, "--mode", "-m", help=MODE_HELP),
-        connect: list[str] | None = typer.Option(None, "--connect", "-e", help=CONNECT_HELP),
-        listen: list[str] | None = typer.Option(None, "--listen", "-l", help=LISTEN_HELP),
-        zenoh_config: str | None = typer.Option(None, "--zenoh-config", help=ZCONF_HELP),
-    ) -> None:
-        """A robot on Zenoh: follows the trajectory stream and publishes joint states."""
-        from . import robot_node
-
-        if not kinematic:
-            _fail(ConfigError("only --kinematic exists here; the physics robot is `replanner sim` (issue 7)"))
-        try:
-            cfg = _config(config)
-            q0 = floats(joints, "--joints", len(cfg.robot.joints)) if joints else None
-            robot_node.run(cfg, _zenoh(cfg, "node", mode, connect, listen, zenoh_config), q0)
-        except ReplannerError as err:
-            _fail(err)
-
-    @app.command("goal")
-    def goal(
-        joints: str | None = typer.Option(
-            None, "--joints", "-j", help="Joint goal [rad], e.g. '0,-0.5,0,-2,0,1.6,0.8'."
-        ),
-        pose: str | None = typer.Option(
-            None, "--pose", "-p", help="Pose goal of --link: 'x,y,z' [m] or 'x,y,z,qx,qy,qz,qw'."
-        ),
-        link: str | None = typer.Option(None, "--link", help="Link of --pose; default: the config's tip link."),
-        goal_id: str | None = typer.Option(None, "--id", help="Goal id; default: a fresh one."),
-        planner: str | None = typer.Option(None, help="OMPL planner, e.g. RRTConnect."),
-        deadline: float | None = typer.Option(None, help="Planning deadline [s]."),
-        velocity_scale: float = typer.Option(1.0, help="Fraction of the velocity limits, (0, 1]."),
-        wait: bool = typer.Option(True, help="Wait for the result (else print the acceptance)."),
-        timeout: float = typer.Option(60.0, min=0.1, help="How long to wait for the result [s]."),
-        config: str = typer.Option("panda", "--config", "-c", help=CONFIG_HELP),
-        robot: str | None = typer.Option(None, help="Robot name; default: the config's."),
-        mode: str | None = typer.Option(None, "--mode", "-m", help=MODE_HELP),
-        connect: list[str] | None = typer.Option(None, "--connect", "-e", help=CONNECT_HELP),
-        zenoh_config: str | None = typer.Option(None, "--zenoh-config", help=ZCONF_HELP),
-    ) -> None:
-        """Send a goal and print its result (exit code 0 only if it succeeded)."""
-        if (joints is None) == (pose is None):
-            _fail(typer.BadParameter("give exactly one of --joints or --pose"))
-        try:
-            with _Connection(config, robot, mode, connect, None, zenoh_config, 5.0) as c:
-                target = None
-                if pose is not None:
-                    v = floats(pose, "--pose", (3, 7))
-                    target = {"link": link or c.cfg.robot.tip_link, "position": v[:3]}
-                    if len(v) == 7:
-                        target["quat_xyzw"] = v[3:]
-                q = floats(joints, "--joints") if joints is not None else None
-                t0 = time.monotonic()
-                fut = c.client.send_goal(
-                    q, target, goal_id, planner=planner, deadline=deadline, velocity_scale=velocity_scale
-                )
-                if not wait:
-                    _print({"accepted": fut.id, **fut.reply})
-                    return
-                res = fut.wait(timeout)
-                if res is None:
-                    _fail(ReplannerError(f"no result for goal {fut.id!r} within {timeout} s"), 1)
-                _print({**res, "elapsed_s": round(time.monotonic() - t0, 3)})
-                if res["status"] != "succeeded":
-                    raise typer.Exit(1)
-        except ReplannerError as err:
-            _fail(err)
-
-    @app.command("cancel")
-    def cancel(
-        goal_id: str = typer.Argument(..., help="Id of the active goal."),
-        config: str = typer.Option("panda", "--config", "-c", help=CONFIG_HELP),
-        robot: str | None = typer.Option(None, help="Robot name; default: the config's."),
-        mode: str | None = typer.Option(None, "--mode", "-m", help=MODE_HELP),
-        connect: list[str] | None = typer.Option(None, "--connect", "-e", help=CONNECT_HELP),
-        zenoh_config: str | None = typer.Option(None, "--zenoh-config", help=ZCONF_HELP),
-    ) -> None:
-        """Cancel the active goal: the arm brakes along its path."""
-        try:
-            with _Connection(config, robot, mode, connect, None, zenoh_config, 5.0) as c:
-                _print(c.client.cancel(goal_id))
-        except ReplannerError as err:
-            _fail(err)
-
-    @app.command("status")
-    def status(
-        watch: bool = typer.Option(False, "--watch", "-w", help="Print transitions and results until Ctrl-C."),
-        config: str = typer.Option("panda", "--config", "-c", help=CONFIG_HELP),
-        robot: str | None = typer.Option(None, help="Robot name; default: the config's."),
-        mode: str | None = typer.Option(None, "--mode", "-m", help=MODE_HELP),
-        connect: list[str] | None = typer.Option(None, "--connect", "-e", help=CONNECT_HELP),
-        zenoh_config: str | None = typer.Option(None, "--zenoh-config", help=ZCONF_HELP),
-    ) -> None:
-        """Print the service's state (JSON); with --watch, then each transition and result as a line."""
-        try:
-            with _Connection(config, robot, mode, connect, None, zenoh_config, 5.0) as c:
-                _print(c.client.state())
-                if watch:
-
-                    def line(kind):
-                        return lambda msg: print(json.dumps({"kind": kind, **msg}), flush=True)
-
-                    c.client.watch(on_transition=line("transition"), on_result=line("result"))
-                    try:
-                        while True:
-                            time.sleep(0.5)
-                    except KeyboardInterrupt:
-                        pass
-        except ReplannerError as err:
-            _fail(err)
-
-
-def _scene_call(ctx_opts: dict, fn):
+    logging.getLogger().setLevel(logging.INFO if verbose else logging.WARNING)
     try:
-        with _Connection(
-            ctx_opts["config"],
-            ctx_opts["robot"],
-            ctx_opts["mode"],
-            ctx_opts["connect"],
-            None,
-            ctx_opts["zenoh_config"],
-            5.0,
-        ) as c:
-            _print(fn(c.client))
+        cfg = resolve_config(config)
+        if no_cameras:
+            cfg = cfg.model_copy(update={"perception": None})
+        serve_mod.run(cfg, ZenohFlags.of(mode, connect, listen, zenoh_config).config(cfg.transport, "service"))
     except ReplannerError as err:
-        _fail(err)
+        fail(err)
 
 
+@app.command("router")
+def router(
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    zenoh_config: ZenohConfigOpt = "router",
+) -> None:
+    """A Zenoh router in this Python process (where there is no zenohd): the other processes connect to
+    it in client mode, e.g. `replanner serve -c demo --zenoh-config client -e tcp/127.0.0.1:7447`."""
+    import signal
+    import threading
+
+    from replanner.sections import TransportConfig
+    from replanner.transport.session import open_session
+
+    try:
+        conf = ZenohFlags.of("router", connect, listen, zenoh_config).config(TransportConfig(), "service")
+        session = open_session(conf)
+    except ReplannerError as err:
+        fail(err)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    print(f"replanner: Zenoh router listening on {conf.get_json('listen/endpoints')} (Ctrl-C stops)", flush=True)
+    try:
+        while not stop.wait(0.5):
+            pass
+    except KeyboardInterrupt:
+        pass
+    session.close()
+
+
+@app.command("robot")
+def robot(
+    kinematic: bool = typer.Option(False, "--kinematic", help="Follow trajectories exactly (no physics)."),
+    config: ConfigOpt = "panda",
+    joints: str | None = typer.Option(None, "--joints", help="Start configuration [rad]; default: home."),
+    mode: ModeOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """A robot on Zenoh: follows the trajectory stream and publishes joint states."""
+    from . import robot_node
+
+    if not kinematic:
+        fail(ConfigError("only --kinematic exists here; the physics robot is `replanner sim` (issue 7)"))
+    try:
+        cfg = resolve_config(config)
+        q0 = floats(joints, "--joints", len(cfg.robot.joints)) if joints else None
+        robot_node.run(cfg, ZenohFlags.of(mode, connect, listen, zenoh_config).config(cfg.transport, "node"), q0)
+    except ReplannerError as err:
+        fail(err)
+
+
+@app.command("goal")
+def goal(
+    joints: str | None = typer.Option(None, "--joints", "-j", help="Joint goal [rad], e.g. '0,-0.5,0,-2,0,1.6,0.8'."),
+    pose: str | None = typer.Option(
+        None, "--pose", "-p", help="Pose goal of --link: 'x,y,z' [m] or 'x,y,z,qx,qy,qz,qw'."
+    ),
+    link: str | None = typer.Option(None, "--link", help="Link of --pose; default: the config's tip link."),
+    goal_id: str | None = typer.Option(None, "--id", help="Goal id; default: a fresh one."),
+    planner: str | None = typer.Option(None, help="OMPL planner, e.g. RRTConnect."),
+    deadline: float | None = typer.Option(None, help="Planning deadline [s]."),
+    velocity_scale: float = typer.Option(1.0, help="Fraction of the velocity limits, (0, 1]."),
+    wait: bool = typer.Option(True, help="Wait for the result (else print the acceptance)."),
+    timeout: float = typer.Option(60.0, min=0.1, help="How long to wait for the result [s]."),
+    config: ConfigOpt = "panda",
+    robot: RobotOpt = None,
+    mode: ModeOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """Send a goal and print its result (exit code 0 only if it succeeded)."""
+    if (joints is None) == (pose is None):
+        fail(typer.BadParameter("give exactly one of --joints or --pose"))
+    try:
+        with Connection(config, robot, ZenohFlags.of(mode, connect, listen, zenoh_config)) as c:
+            target = None
+            if pose is not None:
+                v = floats(pose, "--pose", (3, 7))
+                target = {"link": link or c.cfg.robot.tip_link, "position": v[:3]}
+                if len(v) == 7:
+                    target["quat_xyzw"] = v[3:]
+            q = floats(joints, "--joints") if joints is not None else None
+            t0 = time.monotonic()
+            fut = c.client.send_goal(
+                q, target, goal_id, planner=planner, deadline=deadline, velocity_scale=velocity_scale
+            )
+            if not wait:
+                print_json({"accepted": fut.id, **fut.reply})
+                return
+            res = fut.wait(timeout)
+            if res is None:
+                fail(ReplannerError(f"no result for goal {fut.id!r} within {timeout} s"), 1)
+            print_json({**res, "elapsed_s": round(time.monotonic() - t0, 3)})
+            if res["status"] != "succeeded":
+                raise typer.Exit(1)
+    except ReplannerError as err:
+        fail(err)
+
+
+@app.command("cancel")
+def cancel(
+    goal_id: str = typer.Argument(..., help="Id of the active goal."),
+    config: ConfigOpt = "panda",
+    robot: RobotOpt = None,
+    mode: ModeOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """Cancel the active goal: the arm brakes along its path."""
+    try:
+        with Connection(config, robot, ZenohFlags.of(mode, connect, listen, zenoh_config)) as c:
+            print_json(c.client.cancel(goal_id))
+    except ReplannerError as err:
+        fail(err)
+
+
+@app.command("status")
+def status(
+    watch: bool = typer.Option(False, "--watch", "-w", help="Print transitions and results until Ctrl-C."),
+    config: ConfigOpt = "panda",
+    robot: RobotOpt = None,
+    mode: ModeOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """Print the service's state (JSON); with --watch, then each transition and result as a line."""
+    try:
+        with Connection(config, robot, ZenohFlags.of(mode, connect, listen, zenoh_config)) as c:
+            print_json(c.client.state())
+            if watch:
+
+                def line(kind):
+                    return lambda msg: print(json.dumps({"kind": kind, **msg}), flush=True)
+
+                c.client.watch(on_transition=line("transition"), on_result=line("result"))
+                try:
+                    while True:
+                        time.sleep(0.5)
+                except KeyboardInterrupt:
+                    pass
+    except ReplannerError as err:
+        fail(err)
+
+
+# --------------------------------------------------------------------------------------------- scene
 @scene_app.callback()
 def scene_options(
     ctx: typer.Context,
-    config: str = typer.Option("panda", "--config", "-c", help=CONFIG_HELP),
-    robot: str | None = typer.Option(None, help="Robot name; default: the config's."),
-    mode: str | None = typer.Option(None, "--mode", "-m", help=MODE_HELP),
-    connect: list[str] | None = typer.Option(None, "--connect", "-e", help=CONNECT_HELP),
-    zenoh_config: str | None = typer.Option(None, "--zenoh-config", help=ZCONF_HELP),
+    config: ConfigOpt = "panda",
+    robot: RobotOpt = None,
+    mode: ModeOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    zenoh_config: ZenohConfigOpt = None,
 ) -> None:
     """Connection options come before the subcommand: `replanner scene -e tcp/... list`."""
-    ctx.obj = {"config": config, "robot": robot, "mode": mode, "connect": connect, "zenoh_config": zenoh_config}
+    target = {"config": config, "robot": robot, "zenoh": ZenohFlags.of(mode, connect, listen, zenoh_config)}
+    ctx.ensure_object(dict)["scene"] = target  # next to typer's own keys in ctx.obj, not instead of them
 
 
-POSITION_HELP = "Position 'x,y,z' [m] in the robot base frame."
-QUAT_HELP = "Orientation quaternion 'qx,qy,qz,qw'."
+def _scene_call(ctx: typer.Context, fn) -> None:
+    try:
+        with Connection(**ctx.obj["scene"]) as c:
+            print_json(fn(c.client))
+    except ReplannerError as err:
+        fail(err)
 
 
 @scene_app.command("list")
 def scene_list(ctx: typer.Context) -> None:
     """Objects and attachments, with shapes and poses."""
-    _scene_call(ctx.obj, lambda c: c.scene())
+    _scene_call(ctx, lambda c: c.scene())
 
 
 @scene_app.command("add")
@@ -299,7 +283,7 @@ def scene_add(
 ) -> None:
     """Add a box, sphere or cylinder."""
     if sum(x is not None for x in (box, sphere, cylinder)) != 1:
-        _fail(typer.BadParameter("give exactly one of --box, --sphere or --cylinder"))
+        fail(typer.BadParameter("give exactly one of --box, --sphere or --cylinder"))
     if box is not None:
         shape = {"type": "box", "size": floats(box, "--box", 3)}
     elif sphere is not None:
@@ -308,7 +292,7 @@ def scene_add(
         r, length = floats(cylinder, "--cylinder", 2)
         shape = {"type": "cylinder", "radius": r, "length": length}
     p, q = floats(position, "--position", 3), floats(quat, "--quat", 4)
-    _scene_call(ctx.obj, lambda c: c.add_object(name, shape, p, q))
+    _scene_call(ctx, lambda c: c.add_object(name, shape, p, q))
 
 
 @scene_app.command("move")
@@ -320,13 +304,13 @@ def scene_move(
 ) -> None:
     """Move an object to a new pose."""
     p, q = floats(position, "--position", 3), floats(quat, "--quat", 4)
-    _scene_call(ctx.obj, lambda c: c.move_object(name, p, q))
+    _scene_call(ctx, lambda c: c.move_object(name, p, q))
 
 
 @scene_app.command("remove")
 def scene_remove(ctx: typer.Context, name: str = typer.Argument(..., help="Object name.")) -> None:
     """Remove an object."""
-    _scene_call(ctx.obj, lambda c: c.remove_object(name))
+    _scene_call(ctx, lambda c: c.remove_object(name))
 
 
 @scene_app.command("attach")
@@ -336,16 +320,16 @@ def scene_attach(
     link: str = typer.Option(..., "--link", help="Robot link that carries it, e.g. panda_hand."),
 ) -> None:
     """Attach an object to a link where it is now (it moves with the link and is checked too)."""
-    _scene_call(ctx.obj, lambda c: c.attach(name, link))
+    _scene_call(ctx, lambda c: c.attach(name, link))
 
 
 @scene_app.command("detach")
 def scene_detach(ctx: typer.Context, name: str = typer.Argument(..., help="Object name.")) -> None:
     """Detach an object where it is now."""
-    _scene_call(ctx.obj, lambda c: c.detach(name))
+    _scene_call(ctx, lambda c: c.detach(name))
 
 
 @scene_app.command("clear-map")
 def scene_clear_map(ctx: typer.Context) -> None:
     """Empty the occupancy map (the cameras refill it)."""
-    _scene_call(ctx.obj, lambda c: c.clear_map())
+    _scene_call(ctx, lambda c: c.clear_map())

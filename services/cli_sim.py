@@ -13,18 +13,18 @@ from rich.console import Console
 
 from replanner.errors import ConfigError, ReplannerError
 
-from .cli_service import CONFIG_HELP, CONNECT_HELP, LISTEN_HELP, MODE_HELP, ZCONF_HELP, _config, _fail, _zenoh
+from .cli_common import (
+    ConfigOpt,
+    ConnectOpt,
+    ListenOpt,
+    ModeOpt,
+    ZenohConfigOpt,
+    ZenohFlags,
+    fail,
+    resolve_config,
+)
 
-
-def _connection_args(mode, connect, listen, zenoh_config) -> list[str]:
-    out = []
-    if mode:
-        out += ["-m", mode]
-    for e in connect or ():
-        out += ["-e", e]
-    if zenoh_config:
-        out += ["--zenoh-config", zenoh_config]
-    return out
+app = typer.Typer()  # merged into the root app by cli.py (no name: its commands sit at the top level)
 
 
 def _check_cell(cfg, config: str) -> None:
@@ -38,164 +38,169 @@ def _check_cell(cfg, config: str) -> None:
         )
 
 
-def register(app: typer.Typer) -> None:
-    @app.command("sim")
-    def sim(
-        config: str = typer.Option("demo", "--config", "-c", help=CONFIG_HELP),
-        seed: int = typer.Option(0, min=0, help="Seeds the operator's script and the depth noise."),
-        gui: bool = typer.Option(False, "--gui", help="Open pybullet's window."),
-        log: str | None = typer.Option(None, "--log", help="Append every ground-truth event to this JSON-lines file."),
-        no_operator: bool = typer.Option(False, "--no-operator", help="Nobody steps in."),
-        no_cameras: bool = typer.Option(False, "--no-cameras", help="Do not render or publish point clouds."),
-        mode: str | None = typer.Option(None, "--mode", "-m", help=MODE_HELP),
-        connect: list[str] | None = typer.Option(None, "--connect", "-e", help=CONNECT_HELP),
-        listen: list[str] | None = typer.Option(None, "--listen", "-l", help=LISTEN_HELP),
-        zenoh_config: str | None = typer.Option(None, "--zenoh-config", help=ZCONF_HELP),
-    ) -> None:
-        """The cell under pybullet physics: the arm follows the trajectory stream, cameras publish clouds,
-        an operator steps in, ground truth goes out on <root>/sim/truth."""
-        from . import sim_node
-        from .procs import replanner_cmd
+@app.command("sim")
+def sim(
+    config: ConfigOpt = "demo",
+    seed: int = typer.Option(0, min=0, help="Seeds the operator's script and the depth noise."),
+    gui: bool = typer.Option(False, "--gui", help="Open pybullet's window."),
+    log: str | None = typer.Option(None, "--log", help="Append every ground-truth event to this JSON-lines file."),
+    no_operator: bool = typer.Option(False, "--no-operator", help="Nobody steps in."),
+    no_cameras: bool = typer.Option(False, "--no-cameras", help="Do not render or publish point clouds."),
+    mode: ModeOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """The cell under pybullet physics: the arm follows the trajectory stream, cameras publish clouds,
+    an operator steps in, ground truth goes out on `<root>/sim/truth`."""
+    from . import sim_node
+    from .procs import replanner_cmd
 
-        try:
-            cfg = _config(config)
-            _check_cell(cfg, config)
-            if not no_cameras and (cfg.perception is None or not cfg.perception.sensors):
-                raise ConfigError(f"{config}: no perception.sensors to simulate (or pass --no-cameras)")
-            cams = None
-            if not no_cameras:
-                cams = replanner_cmd(
-                    "cameras", "-c", config, "--seed", str(seed), *_connection_args(mode, connect, listen, zenoh_config)
-                )
-            sim_node.run_sim(
-                cfg,
-                _zenoh(cfg, "node", mode, connect, listen, zenoh_config),
-                seed=seed,
-                gui=gui,
-                truth_log=log,
-                operator=not no_operator and cfg.sim.operator.enabled,
-                cameras_cmd=cams,
-            )
-        except ReplannerError as err:
-            _fail(err)
+    zenoh = ZenohFlags.of(mode, connect, listen, zenoh_config)
+    try:
+        cfg = resolve_config(config)
+        _check_cell(cfg, config)
+        if not no_cameras and (cfg.perception is None or not cfg.perception.sensors):
+            raise ConfigError(f"{config}: no perception.sensors to simulate (or pass --no-cameras)")
+        cams = None
+        if not no_cameras:  # the cameras' process connects like the sim but never listens (the port is the sim's)
+            cams = replanner_cmd("cameras", "-c", config, "--seed", str(seed), *zenoh.args(listen=False))
+        sim_node.run_sim(
+            cfg,
+            zenoh.config(cfg.transport, "node"),
+            seed=seed,
+            gui=gui,
+            truth_log=log,
+            operator=not no_operator and cfg.sim.operator.enabled,
+            cameras_cmd=cams,
+        )
+    except ReplannerError as err:
+        fail(err)
 
-    @app.command("cameras", hidden=True)
-    def cameras(
-        config: str = typer.Option("demo", "--config", "-c", help=CONFIG_HELP),
-        seed: int = typer.Option(0, min=0),
-        mode: str | None = typer.Option(None, "--mode", "-m", help=MODE_HELP),
-        connect: list[str] | None = typer.Option(None, "--connect", "-e", help=CONNECT_HELP),
-        zenoh_config: str | None = typer.Option(None, "--zenoh-config", help=ZCONF_HELP),
-    ) -> None:
-        """The simulated depth cameras (started by `replanner sim`)."""
-        from . import sim_node
 
-        try:
-            cfg = _config(config)
-            sim_node.run_cameras(cfg, _zenoh(cfg, "node", mode, connect, None, zenoh_config), seed=seed)
-        except ReplannerError as err:
-            _fail(err)
+@app.command("cameras", hidden=True)
+def cameras(
+    config: ConfigOpt = "demo",
+    seed: int = typer.Option(0, min=0),
+    mode: ModeOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """The simulated depth cameras (started by `replanner sim`)."""
+    from . import sim_node
 
-    @app.command("pick-and-place")
-    def pick_and_place(
-        config: str = typer.Option("demo", "--config", "-c", help=CONFIG_HELP),
-        cycles: int = typer.Option(10, min=1, help="Cycles to run (each carries the part to the other bin)."),
-        duration: float | None = typer.Option(None, min=1.0, help="Stop starting cycles after this long [s]."),
-        mode: str | None = typer.Option(None, "--mode", "-m", help=MODE_HELP),
-        connect: list[str] | None = typer.Option(None, "--connect", "-e", help=CONNECT_HELP),
-        zenoh_config: str | None = typer.Option(None, "--zenoh-config", help=ZCONF_HELP),
-    ) -> None:
-        """Loop pick at one bin -> place at the other, using the service and the sim's suction gripper."""
-        from replanner.apps.client import Client
-        from replanner.apps.pick_place import Gripper, PickAndPlace
-        from replanner.transport.session import open_session
-        from replanner.world.scene import scene_from_config, top_centers, world_boxes
+    try:
+        cfg = resolve_config(config)
+        conf = ZenohFlags.of(mode, connect, listen, zenoh_config).config(cfg.transport, "node")
+        sim_node.run_cameras(cfg, conf, seed=seed)
+    except ReplannerError as err:
+        fail(err)
 
-        signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
-        try:
-            cfg = _config(config)
-            _check_cell(cfg, config)
-            session = open_session(_zenoh(cfg, "node", mode, connect, None, zenoh_config))
-        except ReplannerError as err:
-            _fail(err)
-        client = Client(session, cfg.robot.name, cfg.transport.namespace, timeout=10.0)
-        pub = session.declare_publisher(f"{client.keys.root}/task/progress")
 
-        def progress(msg: dict) -> None:
-            msg = {"stamp": time.time(), **msg}
-            pub.put(json.dumps(msg))
-            print(json.dumps(msg), flush=True)
+@app.command("pick-and-place")
+def pick_and_place(
+    config: ConfigOpt = "demo",
+    cycles: int = typer.Option(10, min=1, help="Cycles to run (each carries the part to the other bin)."),
+    duration: float | None = typer.Option(None, min=1.0, help="Stop starting cycles after this long [s]."),
+    mode: ModeOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """Loop pick at one bin -> place at the other, using the service and the sim's suction gripper."""
+    from replanner.apps.client import Client
+    from replanner.apps.pick_place import Gripper, PickAndPlace
+    from replanner.transport.session import open_session
+    from replanner.world.scene import scene_from_config, top_centers, world_boxes
 
-        try:
-            if not client.wait_alive(timeout=30.0):
-                raise ReplannerError(f"no service on {client.keys.root} (start `replanner serve -c {config}`)")
-            gripper = Gripper(session, client.keys.root)
-            objects = scene_from_config(cfg)
-            task = PickAndPlace(
-                client,
-                gripper,
-                cfg.sim.task,
-                cfg.robot.tip_link,
-                top_centers(objects),
-                boxes=world_boxes(objects),
-                on_progress=progress,
-            )
-            task.setup()
-            t0 = time.time()
-            for _ in range(cycles):
-                if duration is not None and time.time() - t0 > duration:
-                    break
-                task.run_cycle()
-        except KeyboardInterrupt:
-            print("pick-and-place: interrupted", file=sys.stderr)
-        except ReplannerError as err:
-            _fail(err, 1)
-        finally:
-            client.close()
-            session.close()
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    try:
+        cfg = resolve_config(config)
+        _check_cell(cfg, config)
+        session = open_session(ZenohFlags.of(mode, connect, listen, zenoh_config).config(cfg.transport, "node"))
+    except ReplannerError as err:
+        fail(err)
+    client = Client(session, cfg.robot.name, cfg.transport.namespace, timeout=10.0)
+    pub = session.declare_publisher(f"{client.keys.root}/task/progress")
 
-    @app.command("demo")
-    def demo(
-        config: str = typer.Option("demo", "--config", "-c", help=CONFIG_HELP),
-        cycles: int = typer.Option(6, min=1, help="Pick-and-place cycles."),
-        duration: float | None = typer.Option(None, min=5.0, help="Stop after this long [s] (default: the cycles)."),
-        seed: int = typer.Option(7, min=0, help="Seeds the operator's script and the camera noise."),
-        policy: str = typer.Option(
-            "replan", help="replan (this service), stop-and-wait (MoveIt-style: stop, wait, plan from rest) or none."
-        ),
-        json_path: str | None = typer.Option(None, "--json", help="Write the metrics to this JSON file."),
-        plot: str | None = typer.Option(None, "--plot", help="Draw the timeline (state, clearance, events) to a PNG."),
-        log_dir: str | None = typer.Option(None, "--log-dir", help="Keep the processes' logs and the truth here."),
-        verbose: bool = typer.Option(False, "-v", "--verbose"),
-    ) -> None:
-        """Sim, service and pick-and-place client as three processes on loopback; a table of what happened."""
-        from . import demo as demo_mod
+    def progress(msg: dict) -> None:
+        msg = {"stamp": time.time(), **msg}
+        pub.put(json.dumps(msg))
+        print(json.dumps(msg), flush=True)
 
-        logging.getLogger().setLevel(logging.INFO if verbose else logging.WARNING)
-        if policy not in demo_mod.POLICIES:
-            _fail(typer.BadParameter(f"--policy must be one of {', '.join(demo_mod.POLICIES)}, got {policy!r}"))
-        console = Console()
-        try:
-            cfg = _config(config)
-            _check_cell(cfg, config)
-            if cfg.perception is None or not cfg.perception.sensors:
-                raise ConfigError(f"{config}: the demo needs cameras (perception.sensors)")
-            metrics, rec, info = demo_mod.run(
-                config,
-                cfg,
-                cycles=cycles,
-                duration=duration,
-                seed=seed,
-                policy=policy,
-                log_dir=log_dir,
-                console=console,
-            )
-            demo_mod.write_outputs(metrics, rec, info, cfg, json_path, plot)
-        except ReplannerError as err:
-            _fail(err)
-        console.print(demo_mod.table(metrics))
-        if plot:
-            console.print(f"timeline: {plot}")
-        console.print(f"logs and ground truth: {metrics['logs']}")
-        if metrics.get("crashed"):
-            _fail(ReplannerError(f"a process crashed: {', '.join(metrics['crashed'])} (see the logs)"), 1)
+    try:
+        if not client.wait_alive(timeout=30.0):
+            raise ReplannerError(f"no service on {client.keys.root} (start `replanner serve -c {config}`)")
+        gripper = Gripper(session, client.keys.root)
+        objects = scene_from_config(cfg)
+        task = PickAndPlace(
+            client,
+            gripper,
+            cfg.sim.task,
+            cfg.robot.tip_link,
+            top_centers(objects),
+            boxes=world_boxes(objects),
+            on_progress=progress,
+        )
+        task.setup()
+        t0 = time.time()
+        for _ in range(cycles):
+            if duration is not None and time.time() - t0 > duration:
+                break
+            task.run_cycle()
+    except KeyboardInterrupt:
+        print("pick-and-place: interrupted", file=sys.stderr)
+    except ReplannerError as err:
+        fail(err, 1)
+    finally:
+        client.close()
+        session.close()
+
+
+@app.command("demo")
+def demo(
+    config: ConfigOpt = "demo",
+    cycles: int = typer.Option(6, min=1, help="Pick-and-place cycles."),
+    duration: float | None = typer.Option(None, min=5.0, help="Stop after this long [s] (default: the cycles)."),
+    seed: int = typer.Option(7, min=0, help="Seeds the operator's script and the camera noise."),
+    policy: str = typer.Option(
+        "replan", help="replan (this service), stop-and-wait (MoveIt-style: stop, wait, plan from rest) or none."
+    ),
+    json_path: str | None = typer.Option(None, "--json", help="Write the metrics to this JSON file."),
+    plot: str | None = typer.Option(None, "--plot", help="Draw the timeline (state, clearance, events) to a PNG."),
+    log_dir: str | None = typer.Option(None, "--log-dir", help="Keep the processes' logs and the truth here."),
+    verbose: bool = typer.Option(False, "-v", "--verbose"),
+) -> None:
+    """Sim, service and pick-and-place client as three processes on loopback; a table of what happened."""
+    # No Zenoh flags: the demo picks a free loopback port and wires its three processes to it itself.
+    from . import demo as demo_mod
+
+    logging.getLogger().setLevel(logging.INFO if verbose else logging.WARNING)
+    if policy not in demo_mod.POLICIES:
+        fail(typer.BadParameter(f"--policy must be one of {', '.join(demo_mod.POLICIES)}, got {policy!r}"))
+    console = Console()
+    try:
+        cfg = resolve_config(config)
+        _check_cell(cfg, config)
+        if cfg.perception is None or not cfg.perception.sensors:
+            raise ConfigError(f"{config}: the demo needs cameras (perception.sensors)")
+        metrics, rec, info = demo_mod.run(
+            config,
+            cfg,
+            cycles=cycles,
+            duration=duration,
+            seed=seed,
+            policy=policy,
+            log_dir=log_dir,
+            console=console,
+        )
+        demo_mod.write_outputs(metrics, rec, info, cfg, json_path, plot)
+    except ReplannerError as err:
+        fail(err)
+    console.print(demo_mod.table(metrics))
+    if plot:
+        console.print(f"timeline: {plot}")
+    console.print(f"logs and ground truth: {metrics['logs']}")
+    if metrics.get("crashed"):
+        fail(ReplannerError(f"a process crashed: {', '.join(metrics['crashed'])} (see the logs)"), 1)

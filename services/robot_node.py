@@ -11,8 +11,9 @@ import time
 import zenoh
 
 from replanner.config import ReplannerConfig
-from replanner.control.driver import JointState, KinematicDriver, SampledTrajectory
+from replanner.control import JointState, KinematicDriver
 from replanner.errors import InvalidInputError
+from replanner.trajectory import SampledTrajectory
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
 from replanner.world.robot import RobotModel

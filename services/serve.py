@@ -13,18 +13,13 @@ import numpy as np
 import zenoh
 
 from replanner.config import ReplannerConfig
-from replanner.control.controller import Controller, Goal, GoalRejected
-from replanner.control.driver import JointState
+from replanner.control import Goal, GoalRejected, JointState
 from replanner.errors import InvalidInputError, ReplannerError, UnknownNameError, WorldError
-from replanner.perception import CloudFrame, CloudRejected, Perception
-from replanner.planning.planner import Planner, PoseGoal
-from replanner.planning.process import PlanningProcess
-from replanner.trajectory.generator import TrajectoryGenerator
+from replanner.perception import CloudFrame, CloudRejected
+from replanner.planning import JointGoal, PoseGoal
+from replanner.stack import build_stack
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
-from replanner.world.collision import CollisionChecker
-from replanner.world.robot import RobotModel
-from replanner.world.scene import World, scene_from_config
 from replanner.world.transforms import check_transform
 
 log = logging.getLogger(__name__)
@@ -43,35 +38,11 @@ class Service:
         self, cfg: ReplannerConfig, session: zenoh.Session, *, planning_process: bool | None = None, clock=time.time
     ):
         self.cfg, self.session, self.clock = cfg, session, clock
-        self.robot = RobotModel.from_config(cfg.robot)
+        plan_in = None if planning_process is None else ("process" if planning_process else "thread")
+        self.stack = build_stack(cfg, execute=self._execute, plan_in=plan_in, clock=clock)
+        self.robot, self.world = self.stack.robot, self.stack.world
+        self.perception, self.controller = self.stack.perception, self.stack.controller
         self.keys = Keys(self.robot.name, cfg.transport.namespace)
-        self.world = World(self.robot)
-        for name, shape, pose in scene_from_config(cfg):
-            self.world.add(name, shape, pose)
-        self.checker = CollisionChecker.from_config(self.robot, self.world, cfg.collision)
-        self.planner = Planner.from_config(self.checker, cfg.planning)
-        self.gen = TrajectoryGenerator(self.robot, self.checker, tube_radius=cfg.planning.tube_radius)
-        use_proc = cfg.controller.planning_process if planning_process is None else planning_process
-        self.process = PlanningProcess(cfg) if use_proc else None
-        self.perception = None
-        sensors: list[str] = []
-        if cfg.perception is not None and cfg.perception.sensors:
-            self.perception = Perception(
-                cfg.perception, self.robot, self.world, broadphase_cell=cfg.collision.broadphase_cell
-            )
-            sensors = [s.name for s in cfg.perception.sensors]
-        self.controller = Controller(
-            self.robot,
-            self.checker,
-            self.planner,
-            self.gen,
-            self._execute,
-            cfg.controller,
-            sensors=sensors,
-            clock=clock,
-            default_deadline=cfg.planning.deadline,
-            planning_process=self.process,
-        )
         self.rejections: dict[str, int] = {}
         self.last_js: JointState | None = None
         self._requests: queue.Queue = queue.Queue(maxsize=256)
@@ -128,8 +99,8 @@ class Service:
 
     def stop(self, brake_timeout: float = 2.0) -> None:
         """Brake a moving arm (the brake trajectory is published), then stop answering."""
-        h = self.controller._handle
-        if h is not None and h.result is None:
+        h = self.controller.active_goal()
+        if h is not None:
             try:
                 self.controller.cancel(h.id)
                 h.wait(brake_timeout)
@@ -140,19 +111,15 @@ class Service:
         self.token.undeclare()
         for d in self._decl:
             d.undeclare()
-        self.controller.stop()
+        self.stack.close()
         for t in self._threads:
             t.join(timeout=2.0)
-        if self.process is not None:
-            self.process.close()
 
     # ------------------------------------------------------------------ outputs
     def _execute(self, traj, start: float) -> None:
         t, q, qd, qdd = traj.sample(self.cfg.transport.trajectory_dt)
         self.pub_trajectory.put(m.encode_trajectory(start, self.robot.joint_names, t, q, qd, qdd, self.robot.base_link))
-        self.controller.events_log.append(
-            (self.clock(), "trajectory_published", {"start": start, "duration": float(t[-1])})
-        )
+        self.controller.log_event("trajectory_published", start=start, duration=float(t[-1]))
 
     def _on_transition(self, rec) -> None:
         self.pub_transitions.put(
@@ -212,13 +179,11 @@ class Service:
         try:
             stamp, q, qd = m.decode_joint_state(sample.payload.to_bytes(), self.robot.joint_names)
             js = JointState(stamp, q, qd if qd is not None else np.zeros_like(q))
-            if self.perception is not None:
-                self.perception.add_joint_state(stamp, q)
+            self.stack.on_joint_state(js)
         except (InvalidInputError, ReplannerError) as err:
             self._reject("joint_states", err)
             return
         self.last_js = js
-        self.controller.on_joint_state(js)
 
     def _on_cloud(self, sample) -> None:
         sensor = str(sample.key_expr).rsplit("/", 1)[-1]
@@ -246,12 +211,9 @@ class Service:
                 T = check_transform(pose.matrix(), "sensor pose")
             cfg = next((s for s in self.cfg.perception.sensors if s.name == sensor), None)
             organized = cfg is not None and height > 1 and width == cfg.width and height == cfg.height
-            self.perception.integrate(CloudFrame(sensor, stamp, pts, T, organized=organized))
+            self.perception.integrate(CloudFrame(sensor, stamp, pts, T, organized=organized))  # tells the controller
         except (CloudRejected, InvalidInputError, ReplannerError) as err:
             self._reject(f"clouds/{sensor}", err)
-            return
-        self.controller.on_cloud(sensor, stamp)
-        self.controller.on_map_update(stamp)
 
     # ------------------------------------------------------------------ requests (answered by a worker)
     def _enqueue_query(self, name: str):
@@ -284,27 +246,16 @@ class Service:
 
     def _q_goal(self, payload):
         req = m.parse_json(m.GoalRequest, payload, "goal")
-        pose = None
+        if (req.joints is None) == (req.pose is None):
+            raise InvalidInputError("give exactly one of joints or pose")
         if req.pose is not None:
-            pose = PoseGoal(
-                req.pose.link,
-                req.pose.position,
-                req.pose.quat_xyzw,
-                req.pose.position_tolerance,
-                req.pose.orientation_tolerance,
-            )
-        joints = np.asarray(req.joints, float) if req.joints is not None else None
-        goal = Goal(
-            req.id,
-            joints=joints,
-            pose=pose,
-            planner=req.planner,
-            deadline=req.deadline,
-            velocity_scale=req.velocity_scale,
-            acceleration_scale=req.acceleration_scale,
-        )
-        handle = self.controller.submit(goal)
-        return {"accepted": True, "id": req.id, "goal_joints": handle.q_goal.tolist()}
+            p = req.pose
+            target = PoseGoal(p.link, p.position, p.quat_xyzw, p.position_tolerance, p.orientation_tolerance)
+        else:
+            target = JointGoal(np.asarray(req.joints, float))
+        goal = Goal(req.id, target, req.planner, req.deadline, req.velocity_scale, req.acceleration_scale)
+        q_goal = self.controller.submit(goal).accepted(timeout=10.0)
+        return {"accepted": True, "id": req.id, "goal_joints": q_goal.tolist()}
 
     def _q_cancel(self, payload):
         req = m.parse_json(m.CancelRequest, payload, "cancel")

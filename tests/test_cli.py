@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import ast
 import json
 import os
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import yaml
 
@@ -78,3 +81,99 @@ def test_bench_perception_json():
     assert r["reference_octomap_insert_ms"]["n"] >= 1
     c = r["clearing"]
     assert c["box_voxels_mapped"] > 0 and c["frames_to_clear_measured"] <= c["frames_to_clear_bound"] <= 5
+
+
+# --------------------------------------------------------------------------------------------- layout
+SERVICES = Path(__file__).resolve().parents[1] / "services"
+
+
+def _cli_imports() -> dict[str, list[tuple[str, str | None]]]:
+    """For each services/cli*.py: (cli module it imports, the name taken from it; None for the module itself)."""
+    mods = {p.stem: ast.parse(p.read_text(), str(p)) for p in sorted(SERVICES.glob("cli*.py"))}
+
+    def local(module: str | None, level: int) -> str | None:  # ".cli_common" or "replanner_services.cli_common"
+        if level:
+            return module
+        prefix = "replanner_services"
+        return None if module is None else "" if module == prefix else module.removeprefix(f"{prefix}.")
+
+    edges: dict[str, list[tuple[str, str | None]]] = {m: [] for m in mods}
+    for mod, tree in mods.items():
+        bound: dict[str, str] = {}  # local name -> the cli module bound to it (`from . import cli_bench`)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                target = local(node.module, node.level)
+                if target in mods:
+                    edges[mod] += [(target, a.name) for a in node.names]
+                elif target in (None, ""):  # from . import cli_bench / from replanner_services import cli_bench
+                    for a in node.names:
+                        if a.name in mods:
+                            edges[mod].append((a.name, None))
+                            bound[a.asname or a.name] = a.name
+            elif isinstance(node, ast.Import):
+                edges[mod] += [(t, None) for a in node.names if (t := local(a.name, 0)) in mods]
+        for node in ast.walk(tree):  # cli_bench._print_collision: an underscore name reached through the module
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in bound:
+                edges[mod].append((bound[node.value.id], node.attr))
+    return edges
+
+
+def test_cli_modules_import_each_other_as_a_tree_of_public_names():
+    edges = _cli_imports()
+    assert {"cli", "cli_common"} <= set(edges), sorted(edges)
+    private = [(m, t, n) for m, es in edges.items() for t, n in es if n is not None and n.startswith("_")]
+    assert not private, f"underscore names imported across cli modules (module, from, name): {private}"
+    graph = {m: sorted({t for t, _ in es if t != m}) for m, es in edges.items()}
+    state: dict[str, str] = {}
+
+    def visit(m: str, path: list[str]) -> None:
+        state[m] = "open"
+        for t in graph[m]:
+            assert state.get(t) != "open", f"import cycle: {' -> '.join([*path, m, t])}"
+            if t not in state:
+                visit(t, [*path, m])
+        state[m] = "done"
+
+    for m in graph:
+        if m not in state:
+            visit(m, [])
+    assert graph["cli_common"] == [], "cli_common is the leaf: it imports no other cli module"
+    too_long = {p.name: n for p in SERVICES.glob("cli*.py") if (n := len(p.read_text().splitlines())) > 500}
+    assert not too_long, too_long
+
+
+def test_connection_flags_are_the_same_on_every_session_command():
+    """Like zenoh-python's examples: -m/--mode, -e/--connect, -l/--listen, --zenoh-config, defined once."""
+    for command in ("serve", "goal", "robot", "cancel", "status", "scene", "sim", "pick-and-place"):
+        out = replanner(command, "--help", timeout=60)
+        assert out.returncode == 0, (command, out.stderr)
+        for flags in (r"--mode\s+-m\b", r"--connect\s+-e\b", r"--listen\s+-l\b", r"--zenoh-config\b"):
+            assert re.search(flags, out.stdout), (command, flags, out.stdout)
+    out = replanner("router", "--help", timeout=60)
+    assert re.search(r"--listen\s+-l\b", out.stdout) and "[default: router]" in out.stdout, out.stdout
+
+
+def test_help_keeps_units_and_config_profiles():
+    out = replanner("goal", "--help", timeout=60)
+    assert "Joint goal [rad]" in out.stdout and "Planning deadline [s]" in out.stdout, out.stdout
+    assert "(panda, iiwa, demo)" in out.stdout
+
+
+def test_zenoh_flags_reach_a_child_process_without_the_listen_port():
+    from replanner_services.cli_common import ZenohFlags
+
+    flags = ZenohFlags.of("client", ["tcp/10.0.0.2:7447", "tcp/10.0.0.3:7447"], ["tcp/0.0.0.0:7448"], "client")
+    assert flags.args(listen=False) == [
+        *("-m", "client"),
+        *("-e", "tcp/10.0.0.2:7447", "-e", "tcp/10.0.0.3:7447"),
+        *("--zenoh-config", "client"),
+    ]
+    assert flags.args()[-4:-2] == ["-l", "tcp/0.0.0.0:7448"]
+    assert ZenohFlags.of(None, None, None, None).args() == []
+
+
+def test_a_config_error_is_one_red_line_and_exit_2():
+    out = replanner("status", "-c", "no-such-profile", timeout=60)
+    assert out.returncode == 2 and out.stdout == ""
+    assert out.stderr.startswith("error: config file not found: no-such-profile") and "panda" in out.stderr
+    assert "Traceback" not in out.stderr

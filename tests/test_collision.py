@@ -8,7 +8,7 @@ import pytest
 
 from replanner.bench.scenes import add_table, clutter_map
 from replanner.world.collision import OCTREE, CollisionChecker
-from replanner.world.geometry import Box, Cylinder, Sphere, to_fcl
+from replanner.world.geometry import Box, Cylinder, Sphere, padded_geometry, to_fcl
 from replanner.world.scene import World
 from replanner.world.transforms import make_transform
 from tests.oracle import HULL_MARGIN, PyBulletOracle
@@ -94,28 +94,71 @@ def test_verdicts_agree_with_pybullet_over_2000_configurations(profile):
     assert mismatch <= 0.01 * n
 
 
-def _brute_force_invalid(checker: CollisionChecker, q) -> bool:
-    """Every pair through FCL, no broadphase, no tables: the reference for the checker's shortcuts."""
-    snap, scene, objs, octree = checker._current()
-    lim = checker.robot.limits
-    if np.any(q < lim.lower) or np.any(q > lim.upper):
-        return True
-    T = checker._body_poses(scene, q[None])[0]
-    env, own = [], []
-    for bi, b in enumerate(scene.bodies):
-        tf = fcl.Transform(T[bi][:3, :3], T[bi][:3, 3])
-        env.append(fcl.CollisionObject(b.env, tf))
-        own.append(fcl.CollisionObject(b.self_, tf))
-    for bi in range(len(scene.bodies)):
-        for oi, (_, obj) in enumerate(scene.obstacles):
-            if scene.env_mask[bi, oi] and fcl.collide(env[bi], obj, fcl.CollisionRequest()):
+class _BruteForce:
+    """Every pair through FCL, no broadphase, no tables: the reference for the checker's shortcuts.
+
+    Built from public inputs only: the world's objects and attachments, the robot's self pairs, the checker's
+    paddings and allowed contacts. Build it after the last world edit.
+    """
+
+    def __init__(self, checker: CollisionChecker):
+        self.checker = checker
+        robot, world = checker.robot, checker.world
+        allowed = checker.allowed_contacts
+        names, links, shapes, _ = checker.body_poses(robot.home)
+        nr = len(robot.bodies)
+        assert names[:nr] == tuple(b.link for b in robot.bodies)
+        assert names[nr:] == tuple(f"attached:{a}" for a in world.attachments)
+        self.env = [padded_geometry(s, checker.padding)[0] for s in shapes]
+        self.map_ = [padded_geometry(s, checker.map_padding)[0] for s in shapes]
+        self.own = [padded_geometry(s, robot.self_body_padding)[0] for s in shapes]
+        obstacles = [
+            (o.name, fcl.CollisionObject(to_fcl(o.shape), fcl.Transform(o.pose[:3, :3], o.pose[:3, 3])))
+            for o in world.objects.values()
+        ]
+        occ = world.occupancy
+        octree = None if occ is None or occ.tree is None else fcl.CollisionObject(occ.tree, fcl.Transform())
+        self.env_tests, self.map_tests = [], []
+        self.pairs = [tuple(p) for p in robot.self_collision_pairs]
+        for bi, link in enumerate(links):
+            att = world.attachments[names[bi].removeprefix("attached:")] if bi >= nr else None
+            for oname, obj in obstacles:
+                if (att is None and (link, oname) not in allowed) or (att is not None and oname not in att.support):
+                    self.env_tests.append((bi, obj))
+            if octree is not None and (att is not None or (link, OCTREE) not in allowed):
+                self.map_tests.append((bi, octree))
+            if att is not None:
+                self.pairs += [(ri, bi) for ri in range(nr) if links[ri] not in att.touch_links and links[ri] != link]
+
+    def invalid(self, q) -> bool:
+        lim = self.checker.robot.limits
+        if np.any(q < lim.lower) or np.any(q > lim.upper):
+            return True
+        tf = [fcl.Transform(T[:3, :3], T[:3, 3]) for T in self.checker.body_poses(q).poses]
+        env, map_, own = (
+            [fcl.CollisionObject(g, t) for g, t in zip(geoms, tf)] for geoms in (self.env, self.map_, self.own)
+        )
+        req = fcl.CollisionRequest()
+        for objs, tests in ((env, self.env_tests), (map_, self.map_tests)):
+            if any(fcl.collide(objs[bi], other, req) for bi, other in tests):
                 return True
-        if octree is not None and scene.octree_mask[bi] and fcl.collide(env[bi], octree, fcl.CollisionRequest()):
-            return True
-    for a, b in zip(scene.pair_a, scene.pair_b):
-        if fcl.collide(own[a], own[b], fcl.CollisionRequest()):
-            return True
-    return False
+        return any(fcl.collide(own[a], own[b], req) for a, b in self.pairs)
+
+
+def test_body_poses_are_the_links_fk_times_the_body_offsets(panda):
+    world = World(panda)
+    world.attach_new("part", Box(size=(0.06, 0.06, 0.12)), "panda_hand", make_transform((0, 0, 0.16)))
+    checker = CollisionChecker(panda, world)
+    Q = panda.random_q(np.random.default_rng(1), 6).reshape(2, 3, 7)
+    bodies = checker.body_poses(Q)
+    offsets = [b.T_link_body for b in panda.bodies] + [world.attachments["part"].T_link_object]
+    assert bodies.names == (*(b.link for b in panda.bodies), "attached:part")
+    assert bodies.links == (*(b.link for b in panda.bodies), "panda_hand")
+    assert bodies.shapes == (*(b.shape for b in panda.bodies), world.attachments["part"].shape)
+    assert bodies.poses.shape == (2, 3, len(offsets), 4, 4)
+    T = panda.fk(Q)
+    for bi, (link, off) in enumerate(zip(bodies.links, offsets)):
+        np.testing.assert_allclose(bodies.poses[..., bi, :, :], T[..., panda.link_index(link), :, :] @ off, atol=1e-12)
 
 
 def test_broadphase_and_tables_never_change_a_verdict(panda, panda_cfg):
@@ -133,7 +176,8 @@ def test_broadphase_and_tables_never_change_a_verdict(panda, panda_cfg):
         np.array(PANDA_FOLDED) + rng.normal(0, 0.25, (len(Q[::2]), 7)), panda.limits.lower, panda.limits.upper
     )
     batch = checker.is_valid_batch(Q)
-    ref = np.array([not _brute_force_invalid(checker, q) for q in Q])
+    brute = _BruteForce(checker)
+    ref = np.array([not brute.invalid(q) for q in Q])
     single = np.array([checker.is_valid(q) for q in Q])
     assert 0.1 < ref.mean() < 0.9
     np.testing.assert_array_equal(batch, ref)
@@ -232,11 +276,11 @@ def test_interpolation_bounds_the_motion_of_every_robot_point(panda):
     W = panda.random_q(rng, 6)
     Q, pos = checker.interpolate(W)
     assert np.all(np.diff(pos) > 0) and pos[-1] == len(W) - 1
-    snap, scene, _, _ = checker._current()
-    T = checker._body_poses(scene, Q)
+    bodies = checker.body_poses(Q)
+    assert bodies.names[-1] == "attached:part"
+    T = bodies.poses
     worst = 0.0
-    for bi, b in enumerate(scene.bodies):
-        shape = b.raw_shape
+    for bi, shape in enumerate(bodies.shapes):
         pts = shape.vertices if hasattr(shape, "vertices") else _box_corners(shape)
         world_pts = T[:, bi, :3, :3] @ pts.T + T[:, bi, :3, 3:4]
         step = np.linalg.norm(np.diff(world_pts, axis=0), axis=1).max()
@@ -310,12 +354,12 @@ def test_clearance_pruning_equals_brute_force(panda):
     rng = np.random.default_rng(8)
     world.set_occupancy(clutter_map(rng, 8000))
     checker = CollisionChecker(panda, world, padding=0.0)
-    snap, scene, objs, octree = checker._current()
+    octree = fcl.CollisionObject(world.occupancy.tree, fcl.Transform())
     for q in panda.random_q(rng, 40):
         got = checker.clearance(q, max_distance=1.0)
-        T = checker._body_poses(scene, q[None])[0]
+        bodies = checker.body_poses(q)
         ref = 1.0
-        for bi, b in enumerate(scene.bodies):
-            obj = fcl.CollisionObject(b.raw, fcl.Transform(T[bi][:3, :3], T[bi][:3, 3]))
+        for shape, T in zip(bodies.shapes, bodies.poses):
+            obj = fcl.CollisionObject(to_fcl(shape), fcl.Transform(T[:3, :3], T[:3, 3]))
             ref = min(ref, fcl.distance(obj, octree, fcl.DistanceRequest()))
         assert got.distance == pytest.approx(ref, abs=1e-9)

@@ -10,11 +10,11 @@ import pytest
 import yaml
 
 from replanner.config import parse_config
-from replanner.control.controller import Goal, GoalRejected, GoalStatus, State
-from replanner.errors import UnknownNameError
-from replanner.planning.planner import PoseGoal
+from replanner.control import Goal, GoalRejected, GoalStatus, State
+from replanner.errors import InvalidInputError, UnknownNameError
+from replanner.planning import PoseGoal
 from replanner.sim.kinematic import KinematicSim
-from replanner.trajectory.generator import progress_along
+from replanner.trajectory import progress_along
 from replanner.world.geometry import Box
 from replanner.world.transforms import make_transform
 from tests.conftest import CONFIGS
@@ -53,7 +53,8 @@ def make_sim(panda):
 
 
 def go_to(sim: KinematicSim, q, goal_id: str, timeout: float = 15.0, **kw):
-    h = sim.controller.submit(Goal(goal_id, joints=q, **kw))
+    h = sim.controller.submit(Goal.joints(goal_id, q, **kw))
+    h.accepted(timeout)  # raises GoalRejected with the reason
     res = h.wait(timeout)
     assert res is not None, f"no result for {goal_id} in {timeout} s; transitions: {edges(sim)}"
     return res
@@ -107,7 +108,7 @@ def test_plan_fails_retries_and_gives_up(make_sim):
     assert go_to(sim, ARM_UP, "up").status == GoalStatus.SUCCEEDED
     for name, shape, pose in sleeve(sim.robot):  # a sleeve the arm cannot bend out of (the world knows it)
         sim.world.add(name, shape, pose)
-    h = sim.controller.submit(Goal("out", joints=ARM_FORWARD, deadline=0.4))
+    h = sim.controller.submit(Goal.joints("out", ARM_FORWARD, deadline=0.4))
     res = h.wait(10)
     assert res.status == GoalStatus.FAILED and "planning failed" in res.reason, res
     attempts = int(res.reason.split("(")[1].split()[0])
@@ -126,7 +127,7 @@ def _drop_on_path(sim, after: float, size=0.14, where: float = 0.5):
 def test_block_then_replan_spliced_while_moving(make_sim):
     sim = make_sim()
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     t_start = time.monotonic()
     _drop_on_path(sim, after=0.3, where=0.7)  # far enough ahead that a new path can land before it
@@ -152,7 +153,7 @@ def _check_executed_motion(sim, t_start: float):
     assert (np.abs(v) / (lim.velocity * scale)).max() <= 1.001
     assert (np.abs(a) / lim.acceleration).max() <= 1.001
     assert (np.abs(j) / lim.jerk).max() <= 1.001
-    segs = sim.driver.timeline._segments
+    segs = sim.driver.timeline.segments()
     for start, traj in segs[1:]:
         if start <= t_start or traj.duration == 0:
             continue
@@ -167,7 +168,7 @@ def test_block_then_path_clears_cancels_the_replan(make_sim):
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
     # a box on the goal: every replan fails (goal in collision) while it is there
     goal_hand = hand_at(sim, B)
-    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW * 0.6))
+    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW * 0.6))
     wait_state(sim, State.MONITORING)
     sim.add_obstacle("on_goal", PLATE, make_transform(goal_hand))
     wait_state(sim, State.PENDING, timeout=3.0)
@@ -183,7 +184,7 @@ def test_safety_distance_brakes_and_aborts(make_sim):
     sim = make_sim(policy="abort", pending_timeout=10.0)
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
     goal_hand = hand_at(sim, B)
-    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     sim.add_obstacle("on_goal", PLATE, make_transform(goal_hand))
     res = h.wait(20)
@@ -199,7 +200,7 @@ def test_brake_then_wait_and_resume_after_the_obstacle_leaves(make_sim):
     sim = make_sim(policy="wait_and_resume", pending_timeout=10.0, hold_timeout=20.0, hold_replan_interval=30.0)
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
     goal_hand = hand_at(sim, B)
-    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     sim.add_obstacle("on_goal", PLATE, make_transform(goal_hand))
     wait_state(sim, State.HOLDING, timeout=10.0)
@@ -214,7 +215,7 @@ def test_brake_then_wait_and_resume_after_the_obstacle_leaves(make_sim):
 def test_stop_and_wait_brakes_at_once_then_plans_from_rest(make_sim):
     sim = make_sim(reaction="stop_and_wait", hold_timeout=20.0, hold_replan_interval=0.5)
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     _drop_on_path(sim, after=0.3, where=0.7)  # the box the replan policy goes around
     wait_state(sim, State.HOLDING, timeout=5.0)
@@ -230,7 +231,7 @@ def test_stop_and_wait_brakes_at_once_then_plans_from_rest(make_sim):
 def test_reaction_none_never_looks_again(make_sim):
     sim = make_sim(reaction="none")
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     _drop_on_path(sim, after=0.3, where=0.7)
     res = h.wait(20)
@@ -241,7 +242,7 @@ def test_reaction_none_never_looks_again(make_sim):
 def test_cancel_brakes_and_reports(make_sim):
     sim = make_sim()
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     time.sleep(0.5)
     sim.controller.cancel("across")
@@ -256,10 +257,10 @@ def test_cancel_brakes_and_reports(make_sim):
 def test_new_goal_preempts_the_current_one(make_sim):
     sim = make_sim()
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    first = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    first = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     time.sleep(0.4)
-    second = sim.controller.submit(Goal("home", joints=sim.robot.home))
+    second = sim.controller.submit(Goal.joints("home", sim.robot.home))
     assert first.wait(5).status == GoalStatus.PREEMPTED
     assert second.wait(15).status == GoalStatus.SUCCEEDED
     assert np.abs(sim.driver.state().position - sim.robot.home).max() < 0.01
@@ -268,7 +269,7 @@ def test_new_goal_preempts_the_current_one(make_sim):
 def test_joint_state_silence_brakes_and_fails(make_sim):
     sim = make_sim()
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW))
+    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     sim.driver.silent = True
     res = h.wait(5)
@@ -280,35 +281,47 @@ def test_joint_state_silence_brakes_and_fails(make_sim):
 def test_camera_silence_brakes_and_fails(make_sim):
     sim = make_sim(sensor_timeout=0.5)
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal("across", joints=B, velocity_scale=SLOW * 0.5))
+    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW * 0.5))
     wait_state(sim, State.MONITORING)
     sim.cameras_on = False
     res = h.wait(5)
     assert res.status == GoalStatus.FAILED and "camera 'front' silent" in res.reason
     with pytest.raises(GoalRejected, match="camera 'front' is silent"):
-        sim.controller.submit(Goal("again", joints=A))
+        sim.controller.submit(Goal.joints("again", A)).accepted(timeout=10.0)
 
 
 @pytest.mark.parametrize(
     "goal,match",
     [
-        (Goal("g", joints=A[:6]), "7 values"),
-        (Goal("g", joints=np.r_[np.nan, A[1:]]), "NaN"),
-        (Goal("g", joints=np.r_[A[:3], 0.4, A[4:]]), "panda_joint4 = 0.4000 is outside"),
-        (Goal("g", joints=np.array([0.0, 1.7, 0.0, -0.3, 0.0, 2.0, 0.8])), "panda_hand collides with object 'table'"),
-        (Goal("g", joints=A, planner="Teleport"), "unknown planner 'Teleport'"),
-        (Goal("g", pose=PoseGoal("panda_grasptarget", (2.5, 0.0, 0.5), (1, 0, 0, 0))), "beyond"),
-        (Goal("g", joints=A, pose=PoseGoal("panda_hand", (0.5, 0, 0.5), (1, 0, 0, 0))), "exactly one"),
-        (Goal("g", joints=A, deadline=-1.0), "deadline"),
-        (Goal("g", joints=A, velocity_scale=2.0), "velocity_scale"),
-        (Goal("", joints=A), "goal id"),
+        (Goal.joints("g", A[:6]), "7 values"),
+        (Goal.joints("g", np.r_[np.nan, A[1:]]), "NaN"),
+        (Goal.joints("g", np.r_[A[:3], 0.4, A[4:]]), "panda_joint4 = 0.4000 is outside"),
+        (Goal.joints("g", np.array([0.0, 1.7, 0.0, -0.3, 0.0, 2.0, 0.8])), "panda_hand collides with object 'table'"),
+        (Goal("g", PoseGoal("panda_grasptarget", (2.5, 0.0, 0.5), (1, 0, 0, 0))), "beyond"),
+        (Goal("g", PoseGoal("no_such_link", (0.5, 0.0, 0.5), (1, 0, 0, 0))), "unknown link 'no_such_link'"),
     ],
 )
 def test_bad_goals_are_rejected_and_change_nothing(make_sim, goal, match):
     sim = make_sim()
     before = (sim.controller.state, len(sim.controller.transitions), sim.driver.state().position.copy())
     with pytest.raises(GoalRejected, match=match):
-        sim.controller.submit(goal)
-    time.sleep(0.05)
+        sim.controller.submit(goal).accepted(timeout=10.0)
     assert (sim.controller.state, len(sim.controller.transitions)) == before[:2]
     np.testing.assert_allclose(sim.driver.state().position, before[2])
+
+
+@pytest.mark.parametrize(
+    "make,match",
+    [
+        (lambda: Goal.joints("g", A, planner="Teleport"), "unknown planner 'Teleport'"),
+        (lambda: Goal.joints("g", A, deadline=-1.0), "deadline"),
+        (lambda: Goal.joints("g", A, deadline=float("nan")), r"deadline \[s\] must be a number in \(0, 600\], got nan"),
+        (lambda: Goal.joints("g", A, velocity_scale=2.0), "velocity_scale"),
+        (lambda: Goal.joints("g", A, acceleration_scale=True), "acceleration_scale"),
+        (lambda: Goal.joints("", A), "goal id"),
+        (lambda: Goal("g", A), "JointGoal or a PoseGoal"),
+    ],
+)
+def test_malformed_goals_cannot_be_made(make, match):
+    with pytest.raises(InvalidInputError, match=match):
+        make()

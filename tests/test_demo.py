@@ -57,7 +57,7 @@ def test_sim_arm_follows_goals_under_physics_and_reports_truth(tmp_path):
         with pytest.raises(Exception, match="no part within"):
             g.grasp()  # the tip is far from the part: a clear error, and the sim goes on
         with pytest.raises(Exception, match="unknown command"):
-            g._get("gripper", {"command": "fly"})
+            g.command("fly")
     finally:
         session.close()
         sim.stop()

@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from replanner.control.driver import KinematicDriver, Timeline
+from replanner.control import KinematicDriver, Timeline
 from replanner.trajectory.generator import TrajectoryGenerator
 
 

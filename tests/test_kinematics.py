@@ -20,10 +20,10 @@ def test_fk_matches_pybullet_on_1000_random_configurations(profile):
     worst_pos = worst_rot = 0.0
     for n, q in enumerate(Q):
         oracle.set_q(q)
-        for li, link in enumerate(robot.link_names):
-            ref = oracle.link_pose(link)
-            worst_pos = max(worst_pos, float(np.abs(ref[:3, 3] - T[n, li, :3, 3]).max()))
-            worst_rot = max(worst_rot, float(rotation_angle(ref[:3, :3].T @ T[n, li, :3, :3])))
+        ref = np.stack([oracle.link_pose(link) for link in robot.link_names])
+        worst_pos = max(worst_pos, float(np.abs(ref[:, :3, 3] - T[n, :, :3, 3]).max()))
+        rel = np.swapaxes(ref[:, :3, :3], -1, -2) @ T[n, :, :3, :3]
+        worst_rot = max(worst_rot, float(rotation_angle(rel).max()))
     oracle.close()
     print(f"{robot.name}: worst FK error {worst_pos:.2e} m, {worst_rot:.2e} rad over 1000 configurations")
     assert worst_pos <= 1e-6

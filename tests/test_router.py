@@ -8,7 +8,7 @@ import time
 import pytest
 
 from replanner.apps.client import Client
-from replanner.config import TransportConfig
+from replanner.sections import TransportConfig
 from replanner.transport.session import make_config, open_session, zenoh_config_file
 from tests.service_helpers import Proc, free_port, replanner_cmd
 

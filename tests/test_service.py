@@ -11,10 +11,10 @@ import time
 import numpy as np
 import pytest
 import yaml
+from replanner_services.sim_node import CameraNode
 
 from replanner.apps.client import Client
 from replanner.config import parse_config
-from replanner.sim.cloud_publisher import CloudPublisher
 from replanner.sim.scene import PyBulletScene
 from replanner.transport import messages as m
 from replanner.world.geometry import Box
@@ -101,13 +101,14 @@ def svc(tmp_path_factory):
         client = Client(session, "panda", timeout=10.0)
         stack.wait_alive(session, client.keys.alive)
         rec = Recorder(session, client.keys, robot.joint_names)
-        camera = CloudPublisher(cfg, session, scene_from_config(cfg), rate_hz=10.0, robot=robot).start()
+        cameras = CameraNode(cfg, session, scene_from_config(cfg), rate_hz=10.0, robot=robot).start()
+        camera = cameras.clouds
         _wait(lambda: rec.js and camera.frames >= 3, 20, "joint states and clouds", stack)
         ns = type("Svc", (), {})()
         ns.stack, ns.cfg, ns.cfg_path, ns.robot, ns.session = stack, cfg, cfg_path, robot, session
         ns.client, ns.rec, ns.camera = client, rec, camera
         yield ns
-        camera.stop()
+        cameras.stop()
         rec.close()
         client.close()
         session.close()
@@ -390,6 +391,8 @@ def test_bad_stream_messages_are_counted_and_change_nothing(svc):
     _at_rest(svc)
     before = _observable(svc)
     counts = dict(svc.client.state()["rejections"])
+    svc.camera.paused = True  # the service keeps the newest frame per camera: a good one must not replace a bad one
+    time.sleep(0.3)
     for name, key, payload, source, words in STREAMS:
         n_before = len(svc.rec.rejections)
         data = payload()
@@ -399,6 +402,7 @@ def test_bad_stream_messages_are_counted_and_change_nothing(svc):
         rej = svc.rec.rejections[-1]
         assert rej["source"] == source and words.lower() in rej["reason"].lower(), (name, rej)
         counts[source] = counts.get(source, 0) + 1
+    svc.camera.paused = False
     after = svc.client.state()["rejections"]
     assert {k: after.get(k) for k in counts} == counts
     assert _observable(svc) == before

@@ -8,9 +8,9 @@ import pytest
 from replanner.bench import planning as bench
 from replanner.bench.scenes import add_table
 from replanner.errors import InvalidInputError
-from replanner.planning.planner import Planner
 from replanner.sim.scene import PyBulletScene
-from replanner.trajectory.generator import TrajectoryError, TrajectoryGenerator, distance_to_polyline, progress_along
+from replanner.stack import build_stack
+from replanner.trajectory import TrajectoryError, TrajectoryGenerator, distance_to_polyline, progress_along
 from replanner.world.collision import CollisionChecker
 from replanner.world.scene import World
 
@@ -44,9 +44,9 @@ def planned(panda, panda_cfg):
     out = []
     for family in bench.FAMILIES:
         for p in bench.make_problems(panda, panda_cfg, family, 2, seed=11):
-            checker = CollisionChecker.from_config(panda, bench._world(panda, p.objects), panda_cfg.collision)
-            res = Planner.from_config(checker, panda_cfg.planning, seed=5).plan(p.start, p.goal, deadline=3.0)
-            out.append((p, checker, res.path))
+            stack = build_stack(panda_cfg, robot=panda, static=p.objects, seed=5, cameras=False)
+            res = stack.planner.plan(p.start, p.goal, deadline=3.0)
+            out.append((p, stack.checker, res.path))
     return out
 
 

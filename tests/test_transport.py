@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from replanner.config import TransportConfig
 from replanner.errors import ConfigError, InvalidInputError
+from replanner.sections import TransportConfig
 from replanner.transport import messages as m
 from replanner.transport.keys import KEYS, Keys
 from replanner.transport.session import make_config
@@ -91,7 +91,7 @@ def test_cloud_with_other_fields_is_read_by_offset():
     raw = np.zeros((5, 4), np.float32)
     raw[:, :3] = pts
     msg = ts.types[m.POINT_CLOUD2](
-        header=m._header(1.0, "cam"),
+        header=m.make_header(1.0, "cam"),
         height=1,
         width=5,
         fields=[F(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate(["x", "y", "z", "rgb"])],
@@ -120,5 +120,7 @@ def test_fast_joint_state_encoder_writes_rosbags_bytes():
         names = [f"joint_{i}" for i in range(n)]
         for _ in range(50):
             t, p, v = rng.uniform(0, 2e9), rng.normal(size=n), rng.normal(size=n)
-            assert m.encode_joint_state(t, names, p, v) == m._encode_joint_state(t, names, p, v)
-            assert m.encode_joint_state(t, names, p, frame="base") == m._encode_joint_state(t, names, p, None, "base")
+            assert m.encode_joint_state(t, names, p, v) == m.encode_joint_state_rosbags(t, names, p, v)
+            assert m.encode_joint_state(t, names, p, frame="base") == m.encode_joint_state_rosbags(
+                t, names, p, None, "base"
+            )

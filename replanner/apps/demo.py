@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..bench.stats import summary
+from ..stats import summary
 
 
 @dataclass

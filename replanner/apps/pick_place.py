@@ -15,6 +15,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..sim.config import TaskConfig
+from ..sim.keys import sim_keys
 from .client import Client, ServiceError
 
 log = logging.getLogger(__name__)
@@ -27,22 +28,27 @@ class Gripper:
 
     def __init__(self, session, root: str, timeout: float = 5.0):
         self.session, self.root, self.timeout = session, root, timeout
+        self.keys = sim_keys(root)
 
     def _get(self, key: str, body: dict) -> dict:
-        for reply in self.session.get(f"{self.root}/sim/{key}", payload=json.dumps(body), timeout=self.timeout):
+        for reply in self.session.get(self.keys[key], payload=json.dumps(body), timeout=self.timeout):
             if reply.ok is not None:
                 return json.loads(reply.ok.payload.to_bytes())
             raise ServiceError(json.loads(reply.err.payload.to_bytes()).get("error", "error"))
-        raise ServiceError(f"no simulator answers on {self.root}/sim/{key}: is `replanner sim` running?")
+        raise ServiceError(f"no simulator answers on {self.keys[key]}: is `replanner sim` running?")
 
     def state(self) -> dict:
         return self._get("state", {})
 
+    def command(self, name: str) -> dict:
+        """Send `{"command": name}` to the gripper; raises ServiceError with the simulator's reason if refused."""
+        return self._get("gripper", {"command": name})
+
     def grasp(self) -> dict:
-        return self._get("gripper", {"command": "grasp"})
+        return self.command("grasp")
 
     def release(self) -> dict:
-        return self._get("gripper", {"command": "release"})
+        return self.command("release")
 
 
 class PickAndPlace:

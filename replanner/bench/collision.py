@@ -7,11 +7,11 @@ import time
 import numpy as np
 
 from ..config import ReplannerConfig
+from ..stats import summary
 from ..world.collision import CollisionChecker
 from ..world.robot import RobotModel
 from ..world.scene import World
 from .scenes import add_table, clutter_map
-from .stats import summary
 
 
 def run(

@@ -8,15 +8,12 @@ import time
 import numpy as np
 
 from ..config import ReplannerConfig
-from ..control.controller import Controller, Goal, State
-from ..control.driver import KinematicDriver
-from ..planning.planner import Planner, PlanningError
-from ..trajectory.generator import TrajectoryGenerator
-from ..world.collision import CollisionChecker
+from ..control import Controller, Goal, KinematicDriver, State
+from ..planning import Planner, PlanningError
+from ..stack import build_stack
+from ..stats import summary
 from ..world.robot import RobotModel
-from ..world.scene import World
-from .scenes import add_table, clutter_map
-from .stats import summary
+from .scenes import clutter_map, table
 
 A = np.array([-1.4, 0.2, 0.0, -1.9, 0.0, 2.1, 0.785])
 B = np.array([1.4, 0.2, 0.0, -1.9, 0.0, 2.1, 0.785])
@@ -25,26 +22,22 @@ B = np.array([1.4, 0.2, 0.0, -1.9, 0.0, 2.1, 0.785])
 def run(cfg: ReplannerConfig, *, seed: int = 0, voxels: int = 50_000, samples: int = 300, window: float = 2.0) -> dict:
     rng = np.random.default_rng(seed)
     robot = RobotModel.from_config(cfg.robot)
-    world = World(robot)
-    add_table(world)
-    checker = CollisionChecker.from_config(robot, world, cfg.collision)
+    driver = KinematicDriver(A, rate_hz=cfg.controller.driver_rate_hz)
+    stack = build_stack(
+        cfg, robot=robot, static=[table()], seed=seed, cameras=False, execute=driver.execute, plan_in="thread"
+    )
+    world, checker, ctl = stack.world, stack.checker, stack.controller
     while True:  # a seeded clutter that leaves the A -> B swing free, so every check runs to the end
         world.set_occupancy(clutter_map(rng, voxels, broadphase_cell=cfg.collision.broadphase_cell))
         if checker.path_valid(np.array([A, B])):
             break
-    planner = Planner.from_config(checker, cfg.planning, seed=seed)
-    gen = TrajectoryGenerator(robot, checker, tube_radius=cfg.planning.tube_radius)
-    driver = KinematicDriver(A, rate_hz=cfg.controller.driver_rate_hz)
-    ctl = Controller(
-        robot, checker, planner, gen, driver.execute, cfg.controller, default_deadline=cfg.planning.deadline
-    )
-    driver.subscribe(ctl.on_joint_state)
+    driver.subscribe(stack.on_joint_state)
     driver.start()
     ctl.start()
     try:
         # 1. the check itself, on remaining paths of >= 100 waypoints along a slow swing
         time.sleep(0.1)
-        h = ctl.submit(Goal("swing", joints=B, velocity_scale=0.08))
+        h = ctl.submit(Goal.joints("swing", B, velocity_scale=0.08))
         deadline = time.monotonic() + 5
         while ctl.state != State.MONITORING.value and time.monotonic() < deadline:
             time.sleep(0.01)
@@ -52,7 +45,7 @@ def run(cfg: ReplannerConfig, *, seed: int = 0, voxels: int = 50_000, samples: i
 
         def maps():  # a camera-rate stream of map updates, so the monitor checks on map updates too
             while not stop_feed.is_set():
-                ctl.on_map_update()
+                ctl.on_map()
                 stop_feed.wait(1 / 30)
 
         feeder = threading.Thread(target=maps, daemon=True)
@@ -60,19 +53,19 @@ def run(cfg: ReplannerConfig, *, seed: int = 0, voxels: int = 50_000, samples: i
         lengths, durations, full = [], [], []
         give_up = time.monotonic() + 20
         while len(durations) < samples and time.monotonic() < give_up:
-            rem = ctl.remaining_path(time.monotonic())
-            if rem is None:
+            view = ctl.monitor.view(ctl.moves.timeline, time.monotonic(), ctl.measured())
+            if view is None:
                 time.sleep(0.005)
                 continue
-            if len(rem[0]) < 100:
+            if len(view.path) < 100:
                 break
             t0 = time.perf_counter()
-            checker.path_valid(rem[0], octree_only=True)  # what the monitor runs while the static scene is unchanged
+            checker.path_valid(view.path, octree_only=True)  # what the monitor runs while the static scene is unchanged
             durations.append((time.perf_counter() - t0) * 1e3)
             t0 = time.perf_counter()
-            checker.path_valid(rem[0])  # after a scene edit: everything
+            checker.path_valid(view.path)  # after a scene edit: everything
             full.append((time.perf_counter() - t0) * 1e3)
-            lengths.append(len(rem[0]))
+            lengths.append(len(view.path))
             time.sleep(0.003)
         # 2. the controller's own check rate, idle and while a plan is being computed alongside
         idle = _rate(ctl, window)
@@ -103,7 +96,7 @@ def run(cfg: ReplannerConfig, *, seed: int = 0, voxels: int = 50_000, samples: i
         still_monitoring = ctl.state == State.MONITORING.value
         ctl.cancel("swing") if h.result is None else None
     finally:
-        ctl.stop()
+        stack.close()
         driver.stop()
     return {
         "bench": "monitor",
@@ -135,6 +128,6 @@ def _blocked_pairs(robot, checker, rng, n: int) -> list[tuple[np.ndarray, np.nda
 
 
 def _rate(ctl: Controller, window: float) -> float:
-    c0, t0 = ctl.stats.checks, time.monotonic()
+    c0, t0 = ctl.monitor.stats.checks, time.monotonic()
     time.sleep(window)
-    return (ctl.stats.checks - c0) / (time.monotonic() - t0)
+    return (ctl.monitor.stats.checks - c0) / (time.monotonic() - t0)

@@ -11,15 +11,14 @@ import numpy as np
 from ..config import ReplannerConfig
 from ..errors import ReplannerError
 from ..planning.ik import IKError, solve_ik
-from ..planning.planner import Planner, PlanningError
-from ..trajectory.generator import Trajectory, TrajectoryGenerator, distance_to_polyline
-from ..world.collision import CollisionChecker
+from ..planning.planner import PlanningError
+from ..stack import build_stack
+from ..stats import summary
+from ..trajectory import Trajectory, distance_to_polyline
 from ..world.geometry import Box, Cylinder, Shape
 from ..world.robot import RobotModel
-from ..world.scene import World
 from ..world.transforms import make_transform
 from .scenes import TABLE_SIZE
-from .stats import summary
 
 FAMILIES = ("table", "shelf", "bin", "cage")
 TIP = "panda_grasptarget"
@@ -111,13 +110,6 @@ def _family_objects(family: str, rng: np.random.Generator):
     raise ValueError(f"unknown family {family!r}; families: {', '.join(FAMILIES)}")
 
 
-def _world(robot, objects) -> World:
-    world = World(robot)
-    for name, shape, pose in objects:
-        world.add(name, shape, pose)
-    return world
-
-
 def _random_valid(robot, checker, rng, tries: int = 2000):
     for _ in range(tries):
         q = robot.random_q(rng)
@@ -144,7 +136,7 @@ def make_problems(robot: RobotModel, cfg: ReplannerConfig, family: str, n: int, 
     problems = []
     while len(problems) < n:
         objects, regions = _family_objects(family, rng)
-        checker = CollisionChecker.from_config(robot, _world(robot, objects), cfg.collision)
+        checker = build_stack(cfg, robot=robot, static=objects, cameras=False).checker
         if regions is None:  # the table: random pairs whose straight line is blocked (a real planning problem)
             start, goal = _random_valid(robot, checker, rng), _random_valid(robot, checker, rng)
             if checker.path_valid(np.array([start, goal])):
@@ -208,13 +200,10 @@ def run(
     ignore = ignored_pairs(robot, cfg.collision.allowed_contacts)
     total = per_family * len(families)
     done = 0
-    planner_seeded = False
     for family in families:
         for p in make_problems(robot, cfg, family, per_family, seed):
-            checker = CollisionChecker.from_config(robot, _world(robot, p.objects), cfg.collision)
-            planner = Planner.from_config(checker, cfg.planning, seed=None if planner_seeded else seed)
-            planner_seeded = True
-            gen = TrajectoryGenerator(robot, checker, tube_radius=cfg.planning.tube_radius)
+            stack = build_stack(cfg, robot=robot, static=p.objects, seed=seed, cameras=False)
+            planner, gen = stack.planner, stack.generator
             row = {"family": family, "index": p.index}
             t0 = time.perf_counter()
             try:
@@ -225,7 +214,7 @@ def run(
                 continue
             row.update(
                 success=True,
-                plan_ms=(res.plan_time + res.simplify_time) * 1e3,
+                plan_ms=res.total_time * 1e3,
                 waypoints=len(res.path),
                 direct=res.direct,
                 attempts=res.attempts,

@@ -7,13 +7,13 @@ import time
 import numpy as np
 import pybullet as pb
 
-from ..config import ReplannerConfig, parse_config
-from ..control.controller import Goal, GoalStatus, State
+from ..config import ReplannerConfig
+from ..control import Goal, GoalStatus, State
 from ..sim.kinematic import KinematicSim
+from ..stats import summary
 from ..world.geometry import Box
 from ..world.transforms import make_transform
 from .scenes import TABLE_SIZE
-from .stats import summary
 
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
@@ -21,11 +21,9 @@ B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 
 def _small_cameras(cfg: ReplannerConfig, width: int, height: int) -> ReplannerConfig:
     """The first camera only, rendered at width x height (in-process rendering holds the GIL)."""
-    data = cfg.model_dump(mode="python")
-    sensor = data["perception"]["sensors"][0]
+    sensor = cfg.perception.sensors[0].model_dump(mode="python")
     sensor.update(width=width, height=height, max_points=None)
-    data["perception"]["sensors"] = [sensor]
-    return parse_config(data)
+    return cfg.override({"perception": {"sensors": [sensor]}})
 
 
 def run(
@@ -47,7 +45,7 @@ def run(
     rows = []
     try:
         for k in range(runs):
-            home = ctl.submit(Goal(f"to-start-{k}", joints=A))
+            home = ctl.submit(Goal.joints(f"to-start-{k}", A))
             if home.wait(20) is None or home.result.status != GoalStatus.SUCCEEDED:
                 raise RuntimeError(f"could not return to the start: {home.result}")
             size = rng.uniform(0.08, 0.16)
@@ -66,7 +64,7 @@ def run(
             sim.frame_hooks.append(hook)
             n_before = len(ctl.transitions)
             log_before = len(ctl.events_log)
-            h = ctl.submit(Goal(f"across-{k}", joints=B, velocity_scale=velocity_scale))
+            h = ctl.submit(Goal.joints(f"across-{k}", B, velocity_scale=velocity_scale))
             t_end = time.monotonic() + 5
             while ctl.state != State.MONITORING.value and time.monotonic() < t_end:
                 time.sleep(0.002)

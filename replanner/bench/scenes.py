@@ -13,9 +13,14 @@ from ..world.transforms import make_transform
 TABLE_SIZE = (1.6, 1.4, 0.05)
 
 
+def table(name: str = "table", top_z: float = 0.0, center_xy=(0.3, 0.0)) -> tuple[str, Box, np.ndarray]:
+    """(name, shape, pose) of the benches' table: its top at `top_z` [m]."""
+    return name, Box(size=TABLE_SIZE), make_transform((center_xy[0], center_xy[1], top_z - TABLE_SIZE[2] / 2))
+
+
 def add_table(world: World, name: str = "table", top_z: float = 0.0, center_xy=(0.3, 0.0)) -> None:
     """A table whose top surface is at `top_z` [m], under and around the robot base."""
-    world.add(name, Box(size=TABLE_SIZE), make_transform((center_xy[0], center_xy[1], top_z - TABLE_SIZE[2] / 2)))
+    world.add(*table(name, top_z, center_xy))
 
 
 def clutter_voxels(rng: np.random.Generator, target: int, resolution: float = 0.01) -> np.ndarray:

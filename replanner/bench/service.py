@@ -17,9 +17,9 @@ import numpy as np
 from ..apps.client import Client, ServiceError
 from ..config import ReplannerConfig
 from ..errors import ReplannerError
+from ..stats import summary
 from ..transport import messages as m
 from ..transport.session import free_port, node_session
-from .stats import summary
 
 
 def run(config: str, cfg: ReplannerConfig, *, seed: int = 0, goals: int = 20, queries: int = 100) -> dict:

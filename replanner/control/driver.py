@@ -10,7 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..trajectory.generator import Trajectory
+from ..trajectory import Trajectory
+from .timeline import Timeline
 
 log = logging.getLogger(__name__)
 
@@ -22,36 +23,6 @@ class JointState:
     stamp: float
     position: np.ndarray
     velocity: np.ndarray
-
-
-class Timeline:
-    """Trajectories, each from an absolute start time; a later one replaces what remains of the earlier ones."""
-
-    def __init__(self, q0: np.ndarray):
-        self._segments: list[tuple[float, Trajectory]] = []
-        self._rest = np.asarray(q0, dtype=float).copy()
-        self._lock = threading.Lock()
-
-    def add(self, traj: Trajectory, start: float) -> None:
-        with self._lock:
-            self._segments = [(t, tr) for t, tr in self._segments if t < start]
-            self._segments.append((float(start), traj))
-
-    def active(self, t: float) -> tuple[float, Trajectory] | None:
-        """(start, trajectory) running at time t, or None before the first one."""
-        with self._lock:
-            seg = None
-            for start, traj in self._segments:
-                if start <= t:
-                    seg = (start, traj)
-            return seg
-
-    def state(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        seg = self.active(t)
-        if seg is None:
-            return self._rest.copy(), np.zeros_like(self._rest)
-        q, qd, _ = seg[1].state_at(t - seg[0])
-        return q, qd
 
 
 class KinematicDriver:
@@ -119,48 +90,3 @@ class KinematicDriver:
                 self._stop.wait(delay)
             else:
                 next_t = self.clock()  # fell behind: do not burst
-
-
-class SampledTrajectory:
-    """A trajectory given as points (time, q, qd, qdd), e.g. a received JointTrajectory; quintic Hermite between.
-
-    Position, velocity and acceleration are continuous and exact at the points; between points sampled every
-    10 ms from a jerk-limited trajectory, positions differ from it by about 1e-5 rad.
-    """
-
-    def __init__(self, times, q, qd, qdd):
-        self.times = np.asarray(times, dtype=float)
-        self.q, self.qd, self.qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
-        if len(self.times) < 1 or self.q.shape != self.qd.shape or self.q.shape != self.qdd.shape:
-            raise ValueError("times, q, qd and qdd must describe the same points")
-
-    @classmethod
-    def from_message(cls, data: bytes, joint_names) -> tuple[float, SampledTrajectory]:
-        """(start [s], trajectory) of a JointTrajectory CDR message; raises InvalidInputError."""
-        from ..transport.messages import decode_trajectory
-
-        start, t, q, qd, qdd = decode_trajectory(data, joint_names)
-        return start, cls(t, q, qd, qdd)
-
-    @property
-    def duration(self) -> float:
-        return float(self.times[-1])
-
-    def state_at(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        ts = self.times
-        if t <= ts[0] or len(ts) == 1:
-            return self.q[0].copy(), self.qd[0].copy(), self.qdd[0].copy()
-        if t >= ts[-1]:
-            return self.q[-1].copy(), np.zeros_like(self.q[-1]), np.zeros_like(self.q[-1])
-        i = int(np.searchsorted(ts, t, side="right") - 1)
-        h = ts[i + 1] - ts[i]
-        u = (t - ts[i]) / h
-        p0, v0, a0 = self.q[i], self.qd[i] * h, self.qdd[i] * h * h
-        p1, v1, a1 = self.q[i + 1], self.qd[i + 1] * h, self.qdd[i + 1] * h * h
-        c = [p0, v0, a0 / 2]
-        d, e, f = p1 - p0 - v0 - a0 / 2, v1 - v0 - a0, a1 - a0
-        c += [10 * d - 4 * e + f / 2, -15 * d + 7 * e - f, 6 * d - 3 * e + f / 2]
-        q = sum(ck * u**k for k, ck in enumerate(c))
-        qd = sum(k * ck * u ** (k - 1) for k, ck in enumerate(c) if k) / h
-        qdd = sum(k * (k - 1) * ck * u ** (k - 2) for k, ck in enumerate(c) if k > 1) / (h * h)
-        return q, qd, qdd

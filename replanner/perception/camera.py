@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import PoseConfig, SensorConfig
 from ..errors import InvalidInputError
+from ..sections import PoseConfig, SensorConfig
 from ..world.transforms import make_transform
 
 

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from ..config import OccupancyUpdateConfig
+from ..sections import OccupancyUpdateConfig
 from .filters import VoxelGrid
 
 

@@ -13,12 +13,13 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config import PerceptionConfig, SensorConfig
 from ..errors import InvalidInputError
+from ..sections import PerceptionConfig, SensorConfig
 from ..world.occupancy import OccupancyMap
 from ..world.robot import RobotModel
 from ..world.scene import World
@@ -110,6 +111,16 @@ class Perception:
         self._shadow_filter = SelfFilter(robot, sf.padding, static) if sf.enabled else None
         self._broadphase_cell = broadphase_cell
         self._filtered_version = -1
+        self._subscribers: list[Callable[[str, float], None]] = []
+
+    @classmethod
+    def from_config(cls, cfg, robot: RobotModel, world: World) -> Perception:
+        """From a whole validated config (its perception and collision sections)."""
+        return cls(cfg.perception, robot, world, broadphase_cell=cfg.collision.broadphase_cell)
+
+    def subscribe(self, on_map: Callable[[str, float], None]) -> None:
+        """on_map(sensor, stamp) after each integrated frame (from the integrating thread; it must not block)."""
+        self._subscribers.append(on_map)
 
     @property
     def frames_to_clear(self) -> int:
@@ -294,6 +305,8 @@ class Perception:
         lap("publish")
         sensor.last_stamp = stamp
         sensor.frames += 1
+        for cb in list(self._subscribers):
+            cb(sensor.cfg.name, stamp)
         return rep
 
     @staticmethod

@@ -1,0 +1,42 @@
+"""The planning room: OMPL over the joint space within a deadline, IK for pose goals, a background plan worker."""
+
+from .ik import IKError, IKResult, solve_ik
+from .planner import (
+    PLANNERS,
+    GoalInvalid,
+    JointGoal,
+    NoSolution,
+    Planner,
+    PlanningCanceled,
+    PlanningError,
+    PlanResult,
+    PoseGoal,
+    StartInvalid,
+    UnknownPlanner,
+    planner_class,
+)
+from .worker import JobPurpose, PlanAnswer, PlanJob, PlanWorker, ProcessWorker, ThreadWorker
+
+__all__ = [
+    "PLANNERS",
+    "GoalInvalid",
+    "IKError",
+    "IKResult",
+    "JobPurpose",
+    "JointGoal",
+    "NoSolution",
+    "PlanAnswer",
+    "PlanJob",
+    "PlanResult",
+    "PlanWorker",
+    "Planner",
+    "PlanningCanceled",
+    "PlanningError",
+    "PoseGoal",
+    "ProcessWorker",
+    "StartInvalid",
+    "ThreadWorker",
+    "UnknownPlanner",
+    "planner_class",
+    "solve_ik",
+]

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import atexit
 import logging
+import math
 import threading
 import time
 import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from ompl import base as ob
@@ -28,7 +29,6 @@ from .ik import IKError, solve_ik
 log = logging.getLogger(__name__)
 
 ou.setLogLevel(ou.LogLevel.LOG_WARN)
-_OMPL_SEEDED = False
 
 PLANNERS = {
     "RRTConnect": og.RRTConnect,
@@ -99,17 +99,50 @@ class PoseGoal:
 
 @dataclass
 class PlanResult:
-    """A collision-free joint-space path (M, dof) from start to goal and how it was found."""
+    """A collision-free joint-space path (M, dof) from start to goal and how it was found.
+
+    Times [s]: `search_time` the search, retries included; `simplify_time` the shortcutting; `total_time` the
+    whole call (checks of start and goal, IK, search, simplification).
+    """
 
     path: np.ndarray
     goal: np.ndarray
     planner: str
     attempts: int
-    plan_time: float  # [s] search, retries included
-    simplify_time: float  # [s]
+    search_time: float
+    simplify_time: float
+    total_time: float
     direct: bool = False  # the straight line was free: no search needed
     raw_waypoints: int = 0
-    timings: dict = field(default_factory=dict)
+
+
+def planner_class(name: str):
+    """The OMPL planner class of `name` (see PLANNERS); raises UnknownPlanner listing the names."""
+    try:
+        return PLANNERS[name]
+    except (KeyError, TypeError):
+        raise UnknownPlanner(f"unknown planner {name!r}; available: {', '.join(PLANNERS)}") from None
+
+
+def _seed_ompl(seed: int) -> None:
+    """Restart OMPL's seed generator: planners made after this draw the same random numbers."""
+    level = ou.getLogLevel()
+    ou.setLogLevel(ou.LogLevel.LOG_NONE)  # OMPL logs an error when reseeded after its first random number
+    try:
+        ou.RNG.setSeed(seed % 2_147_483_647 + 1)  # OMPL refuses 0
+    finally:
+        ou.setLogLevel(level)
+
+
+class _Countdown:
+    """An attempt's termination condition: true after the planner's `attempt_iterations` evaluations."""
+
+    def __init__(self, planner: Planner):
+        self.left = planner.attempt_iterations
+
+    def __call__(self) -> bool:
+        self.left -= 1
+        return self.left < 0
 
 
 class _BatchMotionValidator(ob.MotionValidator):
@@ -140,12 +173,15 @@ class Planner:
     Args:
         checker: validity of states and motions.
         planner: default OMPL planner name (see PLANNERS).
-        attempt_time: [s] per attempt before retrying with fresh random state.
-        simplify_time: [s] shortcutting budget (inside the deadline).
+        attempt_iterations: planner iterations per attempt before retrying with fresh random state (a count: with
+            time enough, a seeded plan is the same on any machine; the deadline may still cut it short).
+        shortcut_tries: random shortcuts tried after the search (at most; six misses in a row end it sooner).
         planner_range: planner step [rad]; None keeps OMPL's default.
         search_coarseness: motions are checked this many times coarser while searching (the result is then
             checked finely, and searched again finely if a thin obstacle slipped through).
-        seed: seeds OMPL's random generator once for this process (reproducible runs), and the shortcutting.
+        seed: every plan starts from this seed (OMPL's generator and the shortcutting): the same problem gives the
+            same path, alone or after others. None: fresh randomness. OMPL's generator is per process: planners
+            planning at the same time in threads of one process share it.
     """
 
     def __init__(
@@ -153,8 +189,8 @@ class Planner:
         checker: CollisionChecker,
         *,
         planner: str = "RRTConnect",
-        attempt_time: float = 0.25,
-        simplify_time: float = 0.015,
+        attempt_iterations: int = 200,
+        shortcut_tries: int = 10,
         planner_range: float | None = None,
         ik_restarts: int = 16,
         position_tolerance: float = 0.002,
@@ -164,18 +200,17 @@ class Planner:
     ):
         self.checker = checker
         self.robot = checker.robot
-        self._planner_class(planner)  # raises on an unknown name
+        planner_class(planner)  # raises on an unknown name
         self.default_planner = planner
-        self.attempt_time = float(attempt_time)
-        self.simplify_time = float(simplify_time)
+        if attempt_iterations < 1 or shortcut_tries < 0:
+            raise InvalidInputError("attempt_iterations must be >= 1 and shortcut_tries >= 0")
+        self.attempt_iterations = int(attempt_iterations)
+        self.shortcut_tries = int(shortcut_tries)
         self.planner_range = planner_range
         self.ik_restarts = ik_restarts
         self.position_tolerance = position_tolerance
         self.orientation_tolerance = orientation_tolerance
-        global _OMPL_SEEDED
-        if seed is not None and not _OMPL_SEEDED:  # OMPL's generator is per process and takes one seed
-            ou.RNG.setSeed(max(int(seed), 1))  # OMPL refuses 0
-            _OMPL_SEEDED = True
+        self.seed = None if seed is None else int(seed)
         self._rng = np.random.default_rng(seed)
         # motions are checked coarser while searching; the found path is checked at the full resolution
         self.search_coarseness = float(search_coarseness)
@@ -205,8 +240,8 @@ class Planner:
         return cls(
             checker,
             planner=cfg.planner,
-            attempt_time=cfg.attempt_time,
-            simplify_time=cfg.simplify_time,
+            attempt_iterations=cfg.attempt_iterations,
+            shortcut_tries=cfg.shortcut_tries,
             planner_range=cfg.range,
             ik_restarts=cfg.ik_restarts,
             position_tolerance=cfg.position_tolerance,
@@ -224,13 +259,6 @@ class Planner:
         for i, v in enumerate(q):
             st[i] = float(v)
         return st
-
-    @staticmethod
-    def _planner_class(name: str):
-        try:
-            return PLANNERS[name]
-        except (KeyError, TypeError):
-            raise UnknownPlanner(f"unknown planner {name!r}; available: {', '.join(PLANNERS)}") from None
 
     # ------------------------------------------------------------------ goals
     def resolve_goal(self, start: np.ndarray, goal) -> np.ndarray:
@@ -278,10 +306,13 @@ class Planner:
         `cancel`, when set from another thread, stops the search at once (raises PlanningCanceled).
         """
         t_begin = time.perf_counter()
+        if self.seed is not None:
+            _seed_ompl(self.seed)
+            self._rng = np.random.default_rng(self.seed)
         if not (isinstance(deadline, int | float) and np.isfinite(deadline) and deadline > 0):
             raise InvalidInputError(f"deadline must be a positive number of seconds, got {deadline!r}")
         name = planner or self.default_planner
-        cls = self._planner_class(name)
+        cls = planner_class(name)
         r = self.robot
         try:
             start = r.check_within_limits(start, "start")
@@ -292,12 +323,10 @@ class Planner:
             raise StartInvalid(f"start is in collision: {contact}", contact)
         q_goal = self.resolve_goal(start, goal)
         t_end = t_begin + deadline
-        timings = {"goal": time.perf_counter() - t_begin}
         if self.checker.path_valid(np.array([start, q_goal])):
             t = time.perf_counter() - t_begin
-            return PlanResult(
-                np.array([start, q_goal]), q_goal, name, 0, t, 0.0, direct=True, raw_waypoints=2, timings=timings
-            )
+            return PlanResult(np.array([start, q_goal]), q_goal, name, 0, 0.0, 0.0, t, direct=True, raw_waypoints=2)
+        t_searching = time.perf_counter()
         ss = og.SimpleSetup(self.si)
         ss.setStartAndGoalStates(self._alloc(start), self._alloc(q_goal))
         algo = cls(self.si)
@@ -312,9 +341,11 @@ class Planner:
             if remaining <= 0 or (cancel is not None and cancel.is_set()):
                 break
             attempts += 1
-            budget = min(remaining, self.attempt_time)
             ptc = ob.plannerOrTerminationCondition(
-                ob.exactSolnPlannerTerminationCondition(pdef), ob.timedPlannerTerminationCondition(budget)
+                ob.plannerOrTerminationCondition(
+                    ob.exactSolnPlannerTerminationCondition(pdef), ob.PlannerTerminationCondition(_Countdown(self))
+                ),
+                ob.timedPlannerTerminationCondition(remaining),  # the deadline, the only clock in a plan
             )
             if cancel is not None:
                 ptc = ob.plannerOrTerminationCondition(ptc, ob.PlannerTerminationCondition(cancel.is_set))
@@ -325,9 +356,10 @@ class Planner:
                 self._search_resolution = self.checker.path_resolution
             if not found:
                 ss.clear()  # a fresh tree: the retry explores from new random samples
-        plan_time = time.perf_counter() - t_begin
+        t_search = time.perf_counter()
+        search_time = t_search - t_searching
         if cancel is not None and cancel.is_set():
-            raise PlanningCanceled(f"planning canceled after {plan_time:.3f} s")
+            raise PlanningCanceled(f"planning canceled after {t_search - t_begin:.3f} s")
         if not found:
             raise NoSolution(
                 f"{name} found no path in {deadline:.3f} s ({attempts} attempts); give a longer deadline, "
@@ -336,22 +368,25 @@ class Planner:
         W = self._solution(ss)
         raw = len(W)
         t_simp = time.perf_counter()
-        W = self.shortcut(W, min(self.simplify_time, max(t_end - t_simp, 0.0)))
+        W = self.shortcut(W, t_end)
         simplify_time = time.perf_counter() - t_simp
-        timings["search"] = plan_time
-        return PlanResult(W, q_goal, name, attempts, plan_time, simplify_time, raw_waypoints=raw, timings=timings)
+        total = time.perf_counter() - t_begin
+        return PlanResult(W, q_goal, name, attempts, search_time, simplify_time, total, raw_waypoints=raw)
 
     def _solution(self, ss) -> np.ndarray:
         path = ss.getSolutionPath()
         return np.array([self._to_np(path.getState(i)) for i in range(path.getStateCount())])
 
     # ------------------------------------------------------------------ simplification
-    def shortcut(self, W: np.ndarray, budget: float) -> np.ndarray:
-        """Fewer, shorter segments: skip waypoints, try random shortcuts until `budget` [s], skip again."""
-        t_end = time.perf_counter() + budget
+    def shortcut(self, W: np.ndarray, t_end: float = math.inf) -> np.ndarray:
+        """Fewer, shorter segments: skip waypoints, try up to `shortcut_tries` random shortcuts, skip again.
+
+        Bounded by counts; `t_end` (a perf_counter time, the plan's deadline) may only cut it short.
+        """
         W = self._skip_waypoints(W)
-        misses = 0
-        while time.perf_counter() < t_end and len(W) > 2 and misses < 6:
+        misses = tries = 0
+        while tries < self.shortcut_tries and len(W) > 2 and misses < 6 and time.perf_counter() < t_end:
+            tries += 1
             seg = np.linalg.norm(np.diff(W, axis=0), axis=1)
             acc = np.concatenate([[0.0], np.cumsum(seg)])
             a, b = np.sort(self._rng.uniform(0, acc[-1], 2))

@@ -1,1 +1,1 @@
-"""Simulation with pybullet: scenes, depth cameras. Every function takes the pybullet client id explicitly."""
+"""The simulated cell: pybullet physics, cameras, the operator, ground truth (entry points wire it to Zenoh)."""

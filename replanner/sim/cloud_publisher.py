@@ -1,4 +1,4 @@
-"""Simulated depth cameras on Zenoh: pybullet renders the robot at its reported joint states, clouds go out as CDR."""
+"""Simulated depth cameras: pybullet renders the robot at its reported joint states, clouds go out as CDR."""
 
 from __future__ import annotations
 
@@ -6,40 +6,47 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 
+from ..config import ReplannerConfig
 from ..errors import ConfigError, InvalidInputError
 from ..perception import CameraModel, pose_from_config
 from ..transport import messages as m
-from ..transport.keys import Keys
 from ..world.geometry import Box, Shape
 from ..world.robot import RobotModel
 from ..world.transforms import make_transform
+from .bodies import PARK, create_capsule, pose_from_list, set_pose
 from .camera import PyBulletDepthCamera
-from .config import CellConfig
+from .config import CellConfig, SimConfig
 from .scene import PyBulletScene
 
 log = logging.getLogger(__name__)
 
 
 class CloudPublisher:
-    """Publishes organised PointCloud2 clouds of every configured camera on `<root>/clouds/<sensor>`.
+    """Renders organised PointCloud2 clouds of every configured camera and hands them to `publish`.
+
+    The arm is drawn where the latest input says: `on_joint_state` (a CDR JointState) or, with `mirror_sim`,
+    `on_bodies` (the physics sim's bodies message: the arm, the operator's forearm and the part of one instant).
+    Each frame is stamped with the input it was rendered at.
 
     Args:
-        cfg: full config; its perception.sensors are the cameras (pose, resolution, field of view).
-        session: an open Zenoh session (not closed here).
+        cfg: full config; its perception.sensors are the cameras (pose, resolution, field of view). A cell's
+            config (CellConfig) also gives the depth noise, the forearm and the part; without `sim:`, defaults.
+        publish: called from the rendering thread with (sensor name, CDR PointCloud2).
         static: (name, shape, pose) objects present in the simulated room.
         rate_hz: frames per second per camera (rendering 320x240 takes ~40 ms on one core).
         robot: a loaded model of cfg.robot (loaded here if not given).
-        mirror_sim: also show the operator and the part where `replanner sim` says they are (`sim/bodies`).
+        mirror_sim: also show the operator and the part where the physics sim says they are (`on_bodies`).
         seed: seeds the depth noise (`sim.noise`).
     """
 
     def __init__(
         self,
-        cfg: CellConfig,
-        session,
+        cfg: ReplannerConfig,
+        publish: Callable[[str, bytes], None],
         static=(),
         rate_hz: float = 10.0,
         robot: RobotModel | None = None,
@@ -49,8 +56,7 @@ class CloudPublisher:
         if cfg.perception is None or not cfg.perception.sensors:
             raise ConfigError("the config has no perception.sensors: there is no camera to simulate")
         self.robot = robot or RobotModel.from_config(cfg.robot)
-        self.keys = Keys(self.robot.name, cfg.transport.namespace)
-        self.session = session
+        self.publish = publish
         self.rate_hz = float(rate_hz)
         self.scene = PyBulletScene(self.robot)
         for name, shape, pose in static:
@@ -60,19 +66,23 @@ class CloudPublisher:
             for s in cfg.perception.sensors
         ]
         self.frames = 0
-        self.noise = cfg.sim.noise
+        sim = cfg.sim if isinstance(cfg, CellConfig) else SimConfig()
+        self.noise = sim.noise
         self.rng = np.random.default_rng(seed)
         self.mirror_sim = mirror_sim
         if mirror_sim:
-            from .physics import create_capsule
-
-            oc = cfg.sim.operator
+            oc = sim.operator
             self._op = create_capsule(self.scene.client, oc.arm_radius, oc.arm_length)
-            self._part = self.scene.add("part", Box(size=tuple(cfg.sim.task.part_size)), make_transform((0, 0, -5.0)))
+            self._part = self.scene.add("part", Box(size=tuple(sim.task.part_size)), make_transform(PARK))
         self._js: tuple[float, np.ndarray, tuple | None] | None = None  # stamp, q, (operator, part)
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self.paused = False  # True: the cameras publish nothing (a test sends its own frames meanwhile)
         self._thread: threading.Thread | None = None
+
+    @property
+    def sensors(self) -> list[str]:
+        return [name for name, _ in self.cameras]
 
     # ------------------------------------------------------------------ obstacles only the cameras see
     def add_obstacle(self, name: str, shape: Shape, pose: np.ndarray) -> None:
@@ -89,15 +99,6 @@ class CloudPublisher:
 
     # ------------------------------------------------------------------ running
     def start(self) -> CloudPublisher:
-        self._pubs = {name: self.session.declare_publisher(self.keys.cloud(name)) for name, _ in self.cameras}
-        self._sub = None
-        self._sub_bodies = None
-        if not self.mirror_sim:  # mirroring: the arm comes with the bodies, all of one instant
-            self._sub = self.session.declare_subscriber(self.keys.joint_states, self._on_joint_state)
-        else:
-            from .physics import sim_keys
-
-            self._sub_bodies = self.session.declare_subscriber(sim_keys(self.keys)["bodies"], self._on_bodies)
         self._thread = threading.Thread(target=self._loop, name="cloud-publisher", daemon=True)
         self._thread.start()
         return self
@@ -106,25 +107,23 @@ class CloudPublisher:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=3.0)
-        for sub in (self._sub, self._sub_bodies):
-            if sub is not None:
-                sub.undeclare()
-        for p in self._pubs.values():
-            p.undeclare()
         with self._lock:
             self.scene.close()
 
-    def _on_joint_state(self, sample) -> None:
+    # ------------------------------------------------------------------ inputs (any thread; never block)
+    def on_joint_state(self, payload: bytes) -> None:
+        """Draw the arm at this joint state (CDR) from the next frame on; invalid ones are logged."""
         try:
-            stamp, q, _ = m.decode_joint_state(sample.payload.to_bytes(), self.robot.joint_names)
+            stamp, q, _ = m.decode_joint_state(payload, self.robot.joint_names)
         except InvalidInputError as err:
             log.warning("joint state ignored: %s", err)
             return
         self._js = (stamp, q, None)
 
-    def _on_bodies(self, sample) -> None:
+    def on_bodies(self, payload: bytes | str) -> None:
+        """Draw the arm, the forearm and the part as the physics sim's bodies message says; invalid ones are logged."""
         try:
-            msg = json.loads(sample.payload.to_bytes())
+            msg = json.loads(payload)
             q = np.asarray(msg["q"], float)
             if q.shape != (self.robot.dof,):
                 raise ValueError(f"q has {q.size} values, the robot {self.robot.dof} joints")
@@ -133,8 +132,6 @@ class CloudPublisher:
             log.warning("sim bodies ignored: %s", err)
 
     def _apply_bodies(self, bodies) -> None:
-        from .physics import pose_from_list, set_pose
-
         op, part = bodies
         set_pose(self.scene.client, self._op, pose_from_list(op))
         set_pose(self.scene.client, self._part, pose_from_list(part))
@@ -164,7 +161,7 @@ class CloudPublisher:
                 break
             due[k] = max(due[k] + period, time.monotonic())
             js = self._js
-            if js is None or js[0] == last[k]:  # a frame per joint state at most: a camera's stamps must increase
+            if self.paused or js is None or js[0] == last[k]:  # a frame per joint state at most: stamps increase
                 continue
             last[k] = js[0]
             name, cam = self.cameras[k]
@@ -176,5 +173,5 @@ class CloudPublisher:
             c = cam.camera
             pts = c.depth_to_points(self._depth_noise(depth))
             # stamped with the joint state it was rendered at: the self-filter sees the same arm
-            self._pubs[name].put(m.encode_cloud(js[0], pts, name, c.width, c.height))
+            self.publish(name, m.encode_cloud(js[0], pts, name, c.width, c.height))
             self.frames += 1

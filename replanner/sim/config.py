@@ -10,18 +10,19 @@ import os
 
 from pydantic import Field, model_validator
 
-from ..config import ReplannerConfig, Vec3, _Section, load_config
+from ..config import ReplannerConfig, load_config
+from ..sections import Section, Vec3
 
 Range = tuple[float, float]
 
 
-class NoiseConfig(_Section):
+class NoiseConfig(Section):
     depth_sigma: float = Field(0.0, ge=0.0, le=0.1, description="Depth noise at 1 m, growing with range^2 [m].")
     dropout: float = Field(0.0, ge=0.0, le=0.5, description="Share of pixels with no return.")
     outliers: float = Field(0.0, ge=0.0, le=0.1, description="Share of pixels at a random depth.")
 
 
-class OperatorConfig(_Section):
+class OperatorConfig(Section):
     enabled: bool = True
     stand: Vec3 = Field((0.45, -1.0, 0.3), description="Where the operator's shoulder is [m, base frame].")
     first_after: float = Field(3.0, ge=0.0, description="First intrusion this long after the start [s].")
@@ -67,7 +68,7 @@ class OperatorConfig(_Section):
         return self
 
 
-class TaskConfig(_Section):
+class TaskConfig(Section):
     part_size: Vec3 = Field((0.03, 0.03, 0.06), description="The carried part, a box [m].")
     bins: tuple[str, str] = Field(("bin_a", "bin_b"), description="Scene objects (bin floors) parts rest on.")
     grasp_gap: float = Field(0.02, gt=0.0, le=0.1, description="Suction: the tip stops this far above the part [m].")
@@ -76,7 +77,7 @@ class TaskConfig(_Section):
     velocity_scale: float = Field(0.5, gt=0.0, le=1.0, description="Share of the joint speed limits the task uses.")
 
 
-class SimConfig(_Section):
+class SimConfig(Section):
     physics_hz: float = Field(1000.0, ge=100.0, le=5000.0, description="pybullet steps per second.")
     joint_state_hz: float = Field(250.0, ge=50.0, le=1000.0, description="Joint-state rate of the simulated arm [Hz].")
     camera_rate_hz: float | None = Field(None, gt=0.0, le=60.0, description="Overrides every camera's rate_hz.")

@@ -14,15 +14,11 @@ import time
 import numpy as np
 
 from ..config import ReplannerConfig
-from ..control.controller import Controller
-from ..control.driver import KinematicDriver
-from ..perception import CameraModel, CloudFrame, CloudRejected, Perception, pose_from_config
-from ..planning.planner import Planner
-from ..trajectory.generator import TrajectoryGenerator
-from ..world.collision import CollisionChecker
+from ..control import KinematicDriver
+from ..perception import CameraModel, CloudFrame, CloudRejected, pose_from_config
+from ..stack import build_stack
 from ..world.geometry import Shape
 from ..world.robot import RobotModel
-from ..world.scene import World
 from .camera import PyBulletDepthCamera
 from .scene import PyBulletScene
 
@@ -48,40 +44,19 @@ class KinematicSim:
         seed: int | None = None,
     ):
         self.cfg = cfg
-        self.robot = robot or RobotModel.from_config(cfg.robot)
-        self.world = World(self.robot)
-        for name, shape, pose in static:
-            self.world.add(name, shape, pose)
-        self.checker = CollisionChecker.from_config(self.robot, self.world, cfg.collision)
-        self.planner = Planner.from_config(self.checker, cfg.planning, seed=seed)
-        self.gen = TrajectoryGenerator(self.robot, self.checker, tube_radius=cfg.planning.tube_radius)
-        self.driver = KinematicDriver(self.robot.home, rate_hz=cfg.controller.driver_rate_hz)
-        sensors = []
-        self.perception = None
-        if cfg.perception is not None and cfg.perception.sensors:
-            self.perception = Perception(
-                cfg.perception, self.robot, self.world, broadphase_cell=cfg.collision.broadphase_cell
-            )
-            sensors = [s.name for s in cfg.perception.sensors]
-        self.process = None
-        if cfg.controller.planning_process:
-            from ..planning.process import PlanningProcess
-
-            self.process = PlanningProcess(cfg, seed=seed)
-        self.controller = Controller(
-            self.robot,
-            self.checker,
-            self.planner,
-            self.gen,
-            self.driver.execute,
-            cfg.controller,
-            sensors=sensors,
-            default_deadline=cfg.planning.deadline,
-            planning_process=self.process,
+        robot = robot or RobotModel.from_config(cfg.robot)
+        self.driver = KinematicDriver(robot.home, rate_hz=cfg.controller.driver_rate_hz)
+        self.stack = build_stack(cfg, robot=robot, static=static, seed=seed, execute=self.driver.execute)
+        st = self.stack
+        self.robot, self.world, self.checker, self.planner, self.gen = (
+            st.robot,
+            st.world,
+            st.checker,
+            st.planner,
+            st.generator,
         )
-        self.driver.subscribe(self.controller.on_joint_state)
-        if self.perception is not None:
-            self.driver.subscribe(lambda js: self.perception.add_joint_state(js.stamp, js.position))
+        self.perception, self.controller = st.perception, st.controller
+        self.driver.subscribe(st.on_joint_state)
         self._pb_lock = threading.Lock()
         self.scene = PyBulletScene(self.robot)
         for name, shape, pose in static:
@@ -128,10 +103,8 @@ class KinematicSim:
         self._stop.set()
         for t in self._threads:
             t.join(timeout=3.0)
-        self.controller.stop()
+        self.stack.close()
         self.driver.stop()
-        if self.process is not None:
-            self.process.close()
         with self._pb_lock:
             self.scene.close()
 
@@ -146,12 +119,12 @@ class KinematicSim:
                         self.scene.set_q(js.position)
                         cloud = cam.cloud()
                     try:
-                        self.perception.integrate(CloudFrame(name, js.stamp, cloud, organized=True))
+                        self.perception.integrate(
+                            CloudFrame(name, js.stamp, cloud, organized=True)
+                        )  # tells the controller
                     except CloudRejected as err:
                         log.warning("cloud rejected: %s", err)
                         continue
-                    self.controller.on_cloud(name, js.stamp)
-                    self.controller.on_map_update(js.stamp)
                     now = time.monotonic()
                     self.map_updates.append((now, len(self.world.occupancy)))
                     for hook in list(self.frame_hooks):

@@ -221,7 +221,8 @@ def _stamp(t: float):
     return ts.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000)
 
 
-def _header(t: float, frame: str):
+def make_header(t: float, frame: str):
+    """A std_msgs/Header at time t [s] in `frame`."""
     return typestore().types["std_msgs/msg/Header"](stamp=_stamp(t), frame_id=frame)
 
 
@@ -242,7 +243,7 @@ def encode_joint_state(stamp: float, names, position, velocity=None, frame: str 
     vel = None if velocity is None else np.asarray(velocity, np.float64)
     names = tuple(names)
     if pos.shape != (len(names),) or (vel is not None and vel.shape != pos.shape):
-        return _encode_joint_state(stamp, names, pos, vel, frame)  # rosbags says what is wrong
+        return encode_joint_state_rosbags(stamp, names, pos, vel, frame)  # rosbags says what is wrong
     blob, pos_at, vel_at = _joint_state_layout(names, frame, vel is not None)
     out = bytearray(blob)
     sec = int(math.floor(stamp))
@@ -258,16 +259,17 @@ def _joint_state_layout(names: tuple[str, ...], frame: str, with_velocity: bool)
     """rosbags' bytes for these names, and where the position and velocity arrays start in them."""
     n = len(names)
     mark_p, mark_v = np.full(n, 1.25e-300), np.full(n, -3.5e-300)  # values no header byte run can imitate
-    blob = _encode_joint_state(0.0, names, mark_p, mark_v if with_velocity else None, frame)
+    blob = encode_joint_state_rosbags(0.0, names, mark_p, mark_v if with_velocity else None, frame)
     if blob[:4] != b"\x00\x01\x00\x00":
         raise RuntimeError("rosbags no longer writes little-endian CDR: the fast JointState encoder needs updating")
     return blob, blob.find(mark_p.astype("<f8").tobytes()), blob.find(mark_v.astype("<f8").tobytes())
 
 
-def _encode_joint_state(stamp: float, names, position, velocity=None, frame: str = "") -> bytes:
+def encode_joint_state_rosbags(stamp: float, names, position, velocity=None, frame: str = "") -> bytes:
+    """The reference: rosbags' own serializer (slow; `encode_joint_state` writes the same bytes)."""
     ts = typestore()
     msg = ts.types[JOINT_STATE](
-        header=_header(stamp, frame),
+        header=make_header(stamp, frame),
         name=list(names),
         position=np.asarray(position, np.float64),
         velocity=np.asarray(velocity if velocity is not None else [], np.float64),
@@ -311,7 +313,7 @@ def encode_trajectory(start: float, names, times, q, qd, qdd, frame: str = "") -
                 time_from_start=D(sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000),
             )
         )
-    msg = ts.types[JOINT_TRAJECTORY](header=_header(start, frame), joint_names=list(names), points=points)
+    msg = ts.types[JOINT_TRAJECTORY](header=make_header(start, frame), joint_names=list(names), points=points)
     return bytes(ts.serialize_cdr(msg, JOINT_TRAJECTORY))
 
 
@@ -344,7 +346,7 @@ def encode_cloud(stamp: float, points: np.ndarray, frame: str = "", width: int |
     F = ts.types["sensor_msgs/msg/PointField"]
     fields = [F(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")]
     msg = ts.types[POINT_CLOUD2](
-        header=_header(stamp, frame),
+        header=make_header(stamp, frame),
         height=height,
         width=width,
         fields=fields,

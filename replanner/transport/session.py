@@ -9,8 +9,8 @@ from typing import Literal
 
 import zenoh
 
-from ..config import TransportConfig
 from ..errors import ConfigError
+from ..sections import TransportConfig
 
 
 def make_config(

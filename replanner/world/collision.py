@@ -15,36 +15,55 @@ import logging
 import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
+from enum import Enum
+from typing import NamedTuple
 
 import fcl
 import numpy as np
 
 from ..errors import InvalidInputError
-from .geometry import Shape, bounding_radius, padded_geometry
+from .collision_scene import OCTREE, CollisionScene, ThreadObjects
+from .geometry import Shape
 from .robot import RobotModel
 from .scene import World, WorldSnapshot
 
 log = logging.getLogger(__name__)
 
-OCTREE = "octree"
+
+class ContactKind(str, Enum):
+    """Why a configuration is invalid; a str, so `kind == "octree"` and JSON keep working."""
+
+    WORLD = "world"  # a static object
+    OCTREE = "octree"  # the occupancy map
+    SELF = "self"  # another robot link or an attached object
+    LIMITS = "limits"  # not a contact: a joint outside its position limits
+
+    def __str__(self) -> str:
+        return self.value
 
 
 @dataclass(frozen=True)
 class Contact:
-    """Why a configuration is invalid: `body` (robot link or attached object) touches `other`."""
+    """Why a configuration is invalid: `body` (robot link or attached object) touches `other`.
 
-    kind: str  # "world" (static object), "octree", "self", "limits"
+    For LIMITS, `body` is the joint outside its limits and `other` is empty.
+    """
+
+    kind: ContactKind
     body: str
     other: str
     near: tuple[float, float, float] | None = None  # world point of an octree contact (to find the voxels)
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", ContactKind(self.kind))  # a plain string still names a valid kind
+
     def __str__(self) -> str:
-        if self.kind == "limits":
+        if self.kind is ContactKind.LIMITS:
             return f"joint {self.body} is outside its limits"
-        if self.kind == "octree":
+        if self.kind is ContactKind.OCTREE:
             where = "" if self.near is None else " near ({:.3f}, {:.3f}, {:.3f})".format(*self.near)
             return f"{self.body} collides with the occupancy map{where}"
-        what = {"world": "object", "self": "link"}[self.kind]
+        what = "object" if self.kind is ContactKind.WORLD else "link"
         return f"{self.body} collides with {what} {self.other!r}"
 
 
@@ -74,161 +93,13 @@ class PathCheck:
     contact: Contact | None = None
 
 
-@dataclass(frozen=True, eq=False)
-class _Body:
-    name: str
-    link: str
-    link_index: int
-    T_link_body: np.ndarray
-    raw_shape: Shape
-    env: fcl.CollisionGeometry  # padded by the world padding
-    map_: fcl.CollisionGeometry  # padded by the occupancy-map padding
-    self_: fcl.CollisionGeometry  # padded by the self padding
-    raw: fcl.CollisionGeometry
-    env_box: tuple[np.ndarray, np.ndarray]
-    map_box: tuple[np.ndarray, np.ndarray]
-    self_box: tuple[np.ndarray, np.ndarray]
-    raw_box: tuple[np.ndarray, np.ndarray]
-    attached: bool
-    touch: frozenset[str]
+class BodyPoses(NamedTuple):
+    """The bodies a checker tests, in its order, and their poses at some configurations."""
 
-
-def _ball_radius(shape: Shape, center: np.ndarray) -> float:
-    """Radius of a ball around `center` (shape frame) that contains the shape."""
-    if hasattr(shape, "vertices"):
-        return float(np.linalg.norm(shape.vertices - center, axis=1).max())
-    return bounding_radius(shape) + float(np.linalg.norm(center))
-
-
-class _Scene:
-    """Everything derived from one world version: bodies, obstacles, pair lists and masks (read-only)."""
-
-    def __init__(self, checker: CollisionChecker, snap: WorldSnapshot):
-        robot = checker.robot
-        self.version = snap.version
-        bodies: list[_Body] = []
-        for b in robot.bodies:
-            bodies.append(
-                self._body(
-                    checker, b.link, b.link, robot.link_index(b.link), b.T_link_body, b.shape, False, frozenset()
-                )
-            )
-        for a in snap.attachments.values():
-            bodies.append(
-                self._body(
-                    checker,
-                    f"attached:{a.name}",
-                    a.link,
-                    robot.link_index(a.link),
-                    a.T_link_object,
-                    a.shape,
-                    True,
-                    a.touch_links,
-                )
-            )
-        self.bodies = bodies
-        B = len(bodies)
-        slots, offsets = zip(*(robot.frame_offset(b.link) for b in bodies))
-        self.body_slot = np.array(slots, dtype=np.int64)
-        self.body_off = np.stack([off @ b.T_link_body for off, b in zip(offsets, bodies)])  # T_frame_body
-        # local boxes, padded for the world [0], for self checks [1] and for the map [2]: (3, B, 3)
-        c = np.stack([np.stack([getattr(b, k)[0] for b in bodies]) for k in ("env_box", "self_box", "map_box")])
-        h = np.stack([np.stack([getattr(b, k)[1] for b in bodies]) for k in ("env_box", "self_box", "map_box")])
-        self.box_c = np.concatenate([c, np.ones(c.shape[:2] + (1,))], axis=-1)[..., None]  # homogeneous (2, B, 4, 1)
-        self.box_h = h[..., None]  # (2, B, 3, 1)
-        # bounding balls of the unpadded bodies: centre (B, 4, 1) homogeneous in the body frame, radius (B,)
-        self.ball_c = np.stack([np.append(b.raw_box[0], 1.0) for b in bodies])[..., None]
-        self.ball_r = np.array([_ball_radius(b.raw_shape, b.raw_box[0]) for b in bodies])
-
-        # static obstacles
-        self.obstacles = []
-        lo, hi = [], []
-        for o in snap.objects.values():
-            g, (c, h) = padded_geometry(o.shape, 0.0)
-            self.obstacles.append((o.name, fcl.CollisionObject(g, fcl.Transform(o.pose[:3, :3], o.pose[:3, 3]))))
-            R = o.pose[:3, :3]
-            wc, wh = R @ c + o.pose[:3, 3], np.abs(R) @ h
-            lo.append(wc - wh)
-            hi.append(wc + wh)
-        O = len(self.obstacles)
-        self.obs_lo = np.array(lo).reshape(O, 3)
-        self.obs_hi = np.array(hi).reshape(O, 3)
-        allowed = checker._allowed_contacts
-        self.env_mask = np.ones((B, O), dtype=bool)
-        self.octree_mask = np.ones(B, dtype=bool)
-        support = {f"attached:{a.name}": a.support for a in snap.attachments.values()}
-        for bi, b in enumerate(bodies):
-            for oi, (oname, _) in enumerate(self.obstacles):
-                if (b.link, oname) in allowed and not b.attached:
-                    self.env_mask[bi, oi] = False
-                if b.attached and oname in support[b.name]:
-                    self.env_mask[bi, oi] = False  # resting on it until it has left it
-            if (b.link, OCTREE) in allowed and not b.attached:
-                self.octree_mask[bi] = False
-
-        # self pairs: the robot's own list plus attached objects against links they may not touch
-        nr = len(robot.bodies)
-        pairs = [tuple(p) for p in robot.self_collision_pairs]
-        for ai in range(nr, B):
-            a = bodies[ai]
-            for ri in range(nr):
-                if bodies[ri].link not in a.touch and bodies[ri].link != a.link:
-                    pairs.append((ri, ai))
-        P = np.array(pairs, dtype=np.int64).reshape(-1, 2)
-        self.pair_a, self.pair_b = P[:, 0], P[:, 1]
-        self.pair_a_list, self.pair_b_list = self.pair_a.tolist(), self.pair_b.tolist()
-        # robot pairs come first, so table columns index this list directly
-        self.tables = robot.self_clearance_tables()
-        self.table_cols = self.tables.pair_index
-        box = np.ones(len(P), dtype=bool)
-        box[self.table_cols] = False
-        self.box_cols = np.flatnonzero(box)
-        self.box_a, self.box_b = self.pair_a[self.box_cols], self.pair_b[self.box_cols]
-
-        # per-joint reach of the farthest body point, for path interpolation
-        reach = np.zeros(robot.dof)
-        for b in bodies:
-            radius = bounding_radius(b.raw_shape) + float(np.linalg.norm(b.T_link_body[:3, 3]))
-            reach = np.maximum(reach, robot.reach(b.link, radius))
-        self.reach = reach
-
-    @staticmethod
-    def _body(checker, name, link, link_index, T_lb, shape, attached, touch) -> _Body:
-        env, env_box = padded_geometry(shape, checker.padding)
-        if checker.map_padding == checker.padding:
-            map_, map_box = env, env_box
-        else:
-            map_, map_box = padded_geometry(shape, checker.map_padding)
-        own, own_box = padded_geometry(shape, checker.robot.self_body_padding)
-        raw, raw_box = padded_geometry(shape, 0.0)
-        return _Body(
-            name,
-            link,
-            link_index,
-            np.asarray(T_lb, dtype=float),
-            shape,
-            env,
-            map_,
-            own,
-            raw,
-            env_box,
-            map_box,
-            own_box,
-            raw_box,
-            attached,
-            touch,
-        )
-
-
-class _ThreadObjects:
-    """FCL collision objects for the bodies, owned by one thread (setTransform mutates them)."""
-
-    def __init__(self, scene: _Scene):
-        self.scene = scene
-        self.env = [fcl.CollisionObject(b.env) for b in scene.bodies]
-        self.map_ = [fcl.CollisionObject(b.map_) for b in scene.bodies]
-        self.self_ = [fcl.CollisionObject(b.self_) for b in scene.bodies]
-        self.raw = [fcl.CollisionObject(b.raw) for b in scene.bodies]
+    names: tuple[str, ...]  # as in `Contact.body`: the link, or "attached:<object>"
+    links: tuple[str, ...]  # the link each body is fixed to
+    shapes: tuple[Shape, ...]  # unpadded, in the body frame
+    poses: np.ndarray  # T_base_body (..., B, 4, 4)
 
 
 class CollisionChecker:
@@ -274,8 +145,8 @@ class CollisionChecker:
         for link, obj in allowed_contacts:
             robot.link_index(link)
             allowed.add((link, obj))
-        self._allowed_contacts = frozenset(allowed)
-        self._scene: _Scene | None = None
+        self.allowed_contacts: frozenset[tuple[str, str]] = frozenset(allowed)
+        self._scene: CollisionScene | None = None
         self._scene_lock = threading.Lock()
         self._local = threading.local()
         self._octree_obj: tuple[object, fcl.CollisionObject] | None = None
@@ -296,18 +167,28 @@ class CollisionChecker:
         )
 
     # ------------------------------------------------------------------ caches
-    def _current(self) -> tuple[WorldSnapshot, _Scene, _ThreadObjects, fcl.CollisionObject | None]:
-        snap = self.world.snapshot()
+    def _scene_of(self, snap: WorldSnapshot) -> CollisionScene:
         scene = self._scene
         if scene is None or scene.version != snap.version:
             with self._scene_lock:
                 scene = self._scene
                 if scene is None or scene.version != snap.version:
-                    scene = _Scene(self, snap)
+                    scene = CollisionScene(
+                        self.robot,
+                        snap,
+                        padding=self.padding,
+                        map_padding=self.map_padding,
+                        allowed_contacts=self.allowed_contacts,
+                    )
                     self._scene = scene
+        return scene
+
+    def _current(self) -> tuple[WorldSnapshot, CollisionScene, ThreadObjects, fcl.CollisionObject | None]:
+        snap = self.world.snapshot()
+        scene = self._scene_of(snap)
         objs = getattr(self._local, "objs", None)
         if objs is None or objs.scene is not scene:
-            objs = _ThreadObjects(scene)
+            objs = ThreadObjects(scene)
             self._local.objs = objs
         occ = snap.occupancy
         octree = None
@@ -320,9 +201,9 @@ class CollisionChecker:
         return snap, scene, objs, octree
 
     # ------------------------------------------------------------------ broadphase
-    def _body_poses(self, scene: _Scene, Q: np.ndarray) -> np.ndarray:
+    def _body_poses(self, scene: CollisionScene, Q: np.ndarray) -> np.ndarray:
         """Body poses (N, B, 4, 4) for configurations Q (N, dof)."""
-        return self.robot.frames(Q)[:, scene.body_slot] @ scene.body_off
+        return scene.body_poses(self.robot.frames(Q))
 
     @staticmethod
     def _aabbs(T: np.ndarray, c: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -334,7 +215,7 @@ class CollisionChecker:
         half = (np.abs(T[:, None, :, :3, :3]) @ h)[..., 0]
         return center - half, center + half
 
-    def _candidates(self, snap, scene: _Scene, Q: np.ndarray, T: np.ndarray, octree_only: bool = False):
+    def _candidates(self, snap, scene: CollisionScene, Q: np.ndarray, T: np.ndarray, octree_only: bool = False):
         """Boolean masks of pairs the narrowphase must test: octree (N, B), objects (N, B, O), self (N, P)."""
         lo, hi = self._aabbs(T, scene.box_c, scene.box_h)
         elo, ehi = lo[:, 0], hi[:, 0]
@@ -393,15 +274,14 @@ class CollisionChecker:
             if kind == 0:
                 body = place(objs.map_, placed_map, a)
                 if collide(body, octree, req):
-                    return Contact(
-                        "octree", bodies[a].name, OCTREE, self._contact_point(body, octree) if locate else None
-                    )
+                    near = self._contact_point(body, octree) if locate else None
+                    return Contact(ContactKind.OCTREE, bodies[a].name, OCTREE, near)
             elif kind == 1:
                 name, obj = scene.obstacles[b]
                 if collide(place(objs.env, placed_env, a), obj, req):
-                    return Contact("world", bodies[a].name, name)
+                    return Contact(ContactKind.WORLD, bodies[a].name, name)
             elif collide(place(objs.self_, placed_self, a), place(objs.self_, placed_self, b), req):
-                return Contact("self", bodies[a].name, bodies[b].name)
+                return Contact(ContactKind.SELF, bodies[a].name, bodies[b].name)
         return None
 
     def _contact_point(self, body, octree) -> tuple[float, float, float] | None:
@@ -412,7 +292,7 @@ class CollisionChecker:
     def _limits_contact(self, q: np.ndarray) -> Contact | None:
         lim = self.robot.limits
         bad = np.flatnonzero((q < lim.lower - 1e-9) | (q > lim.upper + 1e-9))
-        return Contact("limits", self.robot.joint_names[bad[0]], "") if len(bad) else None
+        return Contact(ContactKind.LIMITS, self.robot.joint_names[bad[0]], "") if len(bad) else None
 
     def _first_invalid(
         self, Q: np.ndarray, stop_at_first: bool, octree_only: bool = False, locate: bool = False
@@ -463,6 +343,17 @@ class CollisionChecker:
         Q = self.robot.check_q(q).reshape(1, -1)
         valid, _ = self._first_invalid(Q, True, octree_only)
         return bool(valid[0])
+
+    def body_poses(self, q) -> BodyPoses:
+        """The bodies this checker tests in the current world and their poses T_base_body at q (..., dof) [rad].
+
+        Bodies are the robot's collision bodies (in `robot.bodies` order), then the attached objects; poses
+        have shape (..., B, 4, 4). For visualisation and for tests that check the checker against an oracle.
+        """
+        q = self.robot.check_q(q)
+        scene = self._scene_of(self.world.snapshot())
+        T = self._body_poses(scene, q.reshape(-1, self.robot.dof))
+        return BodyPoses(scene.names, scene.links, scene.shapes, T.reshape(q.shape[:-1] + T.shape[1:]))
 
     def check(self, q) -> Contact | None:
         """None if q is valid, else the first contact found (which link touches what)."""

@@ -15,12 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yourdfpy
+from scipy.spatial.transform import Rotation
 
-from ..config import RobotConfig
 from ..errors import InvalidInputError, RobotModelError, UnknownNameError
-from .geometry import Box, ConvexHull, Cylinder, Mesh, Shape, Sphere
+from ..sections import RobotConfig
 from .selfcollision import SelfClearanceTables, default_cache_dir
+from .urdf import CollisionBody, collision_bodies, load_urdf
 
 log = logging.getLogger(__name__)
 
@@ -47,65 +47,28 @@ class JointLimits:
         return np.all((q >= self.lower - tol) & (q <= self.upper + tol), axis=-1)
 
 
-@dataclass(frozen=True)
-class CollisionBody:
-    """One collision shape rigidly fixed to a link; `T_link_body` places the shape in the link frame."""
-
-    link: str
-    shape: Shape
-    T_link_body: np.ndarray
-
-
 def _align_z(axis: np.ndarray) -> np.ndarray:
-    """A rotation whose z column is the unit vector `axis`."""
+    """A rotation whose z column is the unit vector `axis` (the shortest rotation taking z to it)."""
     a = axis / np.linalg.norm(axis)
     z = np.array([0.0, 0.0, 1.0])
     c = float(a @ z)
     if c > 1 - 1e-12:
-        return np.eye(3)
+        return np.eye(3)  # exactly: the usual z axes must give bit-identical frames (the table cache key hashes them)
     if c < -1 + 1e-12:
         return np.diag([1.0, -1.0, -1.0])
     v = np.cross(z, a)
-    s = np.linalg.norm(v)
-    k = v / s
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + s * K + (1 - c) * (K @ K)
+    return Rotation.from_rotvec(v / np.linalg.norm(v) * np.arctan2(np.linalg.norm(v), c)).as_matrix()
 
 
 def _joint_motion(jtype: str, axis: np.ndarray, value: float) -> np.ndarray:
     """Transform of a revolute/prismatic joint at `value` about/along `axis` in the joint frame."""
     T = np.eye(4)
-    R = _align_z(axis)
+    unit = axis / np.linalg.norm(axis)
     if jtype in ("revolute", "continuous"):
-        c, s = np.cos(value), np.sin(value)
-        T[:3, :3] = R @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ R.T
+        T[:3, :3] = Rotation.from_rotvec(unit * value).as_matrix()
     elif jtype == "prismatic":
-        T[:3, 3] = axis / np.linalg.norm(axis) * value
+        T[:3, 3] = unit * value
     return T
-
-
-def _resolve_mesh(filename: str, urdf_dir: Path) -> Path:
-    """Find a mesh referenced by a URDF (package://, file://, relative or absolute)."""
-    name = filename
-    for prefix in ("file://",):
-        if name.startswith(prefix):
-            name = name[len(prefix) :]
-    candidates: list[Path] = []
-    if name.startswith("package://"):
-        rest = name[len("package://") :]
-        parts = Path(rest).parts
-        candidates += [urdf_dir / rest, urdf_dir.parent / rest]
-        if len(parts) > 1:  # package://<pkg>/meshes/... next to the URDF or one level up
-            candidates += [urdf_dir / Path(*parts[1:]), urdf_dir.parent / Path(*parts[1:])]
-    else:
-        p = Path(name)
-        candidates += [p] if p.is_absolute() else [urdf_dir / p]
-    for c in candidates:
-        if c.is_file():
-            return c
-    raise RobotModelError(
-        f"mesh {filename!r} referenced by the URDF not found; looked in: {', '.join(str(c) for c in candidates)}"
-    )
 
 
 class RobotModel:
@@ -142,15 +105,7 @@ class RobotModel:
     ):
         self.name = name
         self.urdf_path = Path(urdf_path)
-        if not self.urdf_path.is_file():
-            raise RobotModelError(f"URDF file not found: {self.urdf_path}")
-        try:
-            urdf = yourdfpy.URDF.load(
-                str(self.urdf_path), load_meshes=False, build_scene_graph=False, load_collision_meshes=False
-            )
-        except Exception as err:  # yourdfpy raises several types for malformed XML
-            raise RobotModelError(f"cannot parse URDF {self.urdf_path}: {err}") from err
-        robot = urdf.robot
+        robot = load_urdf(self.urdf_path)
         link_names_all = [link.name for link in robot.links]
         links_by_name = {link.name: link for link in robot.links}
         children: dict[str, list] = {n: [] for n in link_names_all}
@@ -290,7 +245,11 @@ class RobotModel:
         self.home = self.check_q(home, "home")
         self.home.setflags(write=False)
 
-        self.bodies: tuple[CollisionBody, ...] = tuple(self._load_bodies(links_by_name))
+        self.bodies: tuple[CollisionBody, ...] = tuple(
+            collision_bodies(links_by_name, self.link_names, self.urdf_path.parent)
+        )
+        if not self.bodies:
+            raise RobotModelError(f"URDF {self.urdf_path} has no collision geometry under {self.base_link!r}")
         self.self_padding = float(self_padding)
         self.self_body_padding = self.self_padding / 2  # per body, so a pair keeps self_padding apart
         self.self_collision_pairs = self._self_pairs(order, allowed_self_pairs)
@@ -315,34 +274,6 @@ class RobotModel:
         )
 
     # ------------------------------------------------------------------ geometry
-    def _load_bodies(self, links_by_name) -> list[CollisionBody]:
-        bodies = []
-        urdf_dir = self.urdf_path.parent
-        for link in self.link_names:
-            for c in links_by_name[link].collisions:
-                g = c.geometry
-                T = np.eye(4) if c.origin is None else np.asarray(c.origin, dtype=float)
-                if g.box is not None:
-                    shape: Shape = Box(size=tuple(float(s) for s in g.box.size))
-                elif g.cylinder is not None:
-                    shape = Cylinder(radius=float(g.cylinder.radius), length=float(g.cylinder.length))
-                elif g.sphere is not None:
-                    shape = Sphere(radius=float(g.sphere.radius))
-                elif g.mesh is not None:
-                    path = _resolve_mesh(g.mesh.filename, urdf_dir)
-                    scale = 1.0 if g.mesh.scale is None else np.asarray(g.mesh.scale, dtype=float)
-                    mesh = Mesh.from_file(str(path), scale=scale)
-                    # the hull is baked into the link frame: pybullet checks the same hull of the same mesh
-                    pts = mesh.vertices @ T[:3, :3].T + T[:3, 3]
-                    shape, T = ConvexHull.of_points(pts), np.eye(4)
-                else:
-                    continue
-                T.setflags(write=False)
-                bodies.append(CollisionBody(link, shape, T))
-        if not bodies:
-            raise RobotModelError(f"URDF {self.urdf_path} has no collision geometry under {self.base_link!r}")
-        return bodies
-
     def _self_pairs(self, order, allowed: Iterable[tuple[str, str]]) -> np.ndarray:
         with_geometry = {b.link for b in self.bodies}
         parent_link = {link: j.parent for link, j in order if j is not None}

@@ -1,25 +1,27 @@
-"""Rigid transforms as 4x4 homogeneous matrices. Quaternions are (x, y, z, w), as in ROS and pybullet."""
+"""Rigid transforms as 4x4 homogeneous matrices. Quaternions are (x, y, z, w), as in ROS, pybullet and scipy."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..errors import InvalidInputError
+
+try:  # scipy >= 1.16 projects every matrix onto SO(3) with an SVD (10x slower) unless told it is a rotation
+    Rotation.from_matrix(np.eye(3), assume_valid=True)
+    _AS_ROTATION = {"assume_valid": True}
+except TypeError:  # older scipy has no such option and does not project
+    _AS_ROTATION = {}
 
 
 def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
     """Rotation matrix of URDF roll-pitch-yaw [rad] (fixed axes X, then Y, then Z)."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
+    a = np.asarray(rpy, dtype=float)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"rpy must be 3 finite angles (roll, pitch, yaw) [rad], got {np.asarray(rpy).tolist()}")
+    return Rotation.from_euler("xyz", a).as_matrix()  # lower case: extrinsic axes, as URDF
 
 
 def quat_to_matrix(quat_xyzw: Sequence[float]) -> np.ndarray:
@@ -28,35 +30,15 @@ def quat_to_matrix(quat_xyzw: Sequence[float]) -> np.ndarray:
     n = np.linalg.norm(q)
     if q.shape != (4,) or not np.isfinite(n) or n < 1e-9:
         raise InvalidInputError(f"quaternion must be 4 finite numbers (x, y, z, w) with norm > 0, got {q.tolist()}")
-    x, y, z, w = q / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    return Rotation.from_quat(q / n).as_matrix()
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     """Unit quaternion (x, y, z, w) with w >= 0 of a rotation matrix."""
     m = np.asarray(R, dtype=float)
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    if tr > 0:
-        s = 2.0 * np.sqrt(tr + 1.0)
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = [0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = [(m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s]
-    q = np.asarray(q)
-    q /= np.linalg.norm(q)
-    return -q if q[3] < 0 else q
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+        raise InvalidInputError(f"rotation matrix must be a finite 3x3 array, got shape {m.shape}")
+    return Rotation.from_matrix(m, **_AS_ROTATION).as_quat(canonical=True)
 
 
 def make_transform(position: Sequence[float] = (0.0, 0.0, 0.0), quat_xyzw: Sequence[float] | None = None) -> np.ndarray:
@@ -103,6 +85,9 @@ def invert_transform(T: np.ndarray) -> np.ndarray:
 
 
 def rotation_angle(R: np.ndarray) -> np.ndarray:
-    """Rotation angle [rad] of rotation matrices (..., 3, 3)."""
-    tr = np.trace(R, axis1=-2, axis2=-1)
-    return np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+    """Rotation angle [rad] in [0, pi] of rotation matrices (..., 3, 3)."""
+    m = np.asarray(R, dtype=float)
+    if m.shape[-2:] != (3, 3):
+        raise InvalidInputError(f"rotation matrices must have shape (..., 3, 3), got {m.shape}")
+    angle = Rotation.from_matrix(m.reshape(-1, 3, 3), **_AS_ROTATION).magnitude()
+    return angle.reshape(m.shape[:-2])[()]

@@ -1,0 +1,41 @@
+"""Are the robot and the cameras still talking? The ages of the inputs the controller needs to move safely."""
+
+from __future__ import annotations
+
+import math
+
+
+class Liveness:
+    """The newest joint state and when each input was last heard of, on the controller's clock [s].
+
+    Args:
+        sensors: camera names whose silence is a fault.
+        joint_state_timeout, sensor_timeout: [s] of silence that make an input dead.
+    """
+
+    def __init__(self, sensors: tuple[str, ...], joint_state_timeout: float, sensor_timeout: float):
+        self.sensors = sensors
+        self.joint_state_timeout, self.sensor_timeout = joint_state_timeout, sensor_timeout
+        self.last_js = None  # (receipt time, JointState)
+        self._seen: dict[str, float] = {}
+
+    def joint_state(self, now: float, js) -> None:
+        self.last_js = (now, js)
+
+    def sensor(self, now: float, name: str) -> None:
+        self._seen[name] = now
+
+    def silent(self, now: float, ready: bool = False) -> str | None:
+        """Why the inputs cannot be trusted now, or None. ready: phrased for refusing a new goal."""
+        js = self.last_js
+        if js is None or now - js[0] > self.joint_state_timeout:
+            if ready:
+                return "no recent joint state: the robot is not reporting (check the driver)"
+            return f"joint states silent for {now - js[0] if js else math.inf:.2f} s"
+        for s in self.sensors:
+            age = now - self._seen.get(s, -math.inf)
+            if age > self.sensor_timeout:
+                if ready:
+                    return f"camera {s!r} is silent: its point clouds are needed to move safely"
+                return f"camera {s!r} silent for {age:.2f} s"
+        return None

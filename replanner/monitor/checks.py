@@ -1,0 +1,141 @@
+"""The monitor's checks: each looks at the motion as it stands and returns a typed verdict; none decides anything."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from ..trajectory import Trajectory, TrajectoryGenerator
+from ..world.collision import CollisionChecker, Contact
+
+
+@dataclass(frozen=True, eq=False)
+class MotionView:
+    """The motion as one monitor cycle sees it.
+
+    now: controller clock [s]; q: measured configuration [rad]; path: waypoints (M, dof) of what the arm still
+    has to travel, starting at q; progress: share of the running trajectory's curve done, 0 to 1; segment:
+    (start [s], trajectory) running now; key: names the trajectories the path was read from (same key, same
+    curve); check_gap: how late the next check may come [s].
+    """
+
+    now: float
+    q: np.ndarray
+    path: np.ndarray
+    progress: float
+    segment: tuple[float, Trajectory]
+    key: tuple
+    check_gap: float = 0.0
+
+
+class Verdict(NamedTuple):
+    """What one check found: `clear`, or why not (a contact, the clearance [m] where it was measured); a speed
+    check also says the share of the nominal speed the arm may keep (`speed_factor`, 0: stop)."""
+
+    check: str
+    clear: bool
+    reason: str = ""
+    contact: Contact | None = None
+    clearance: float | None = None
+    speed_factor: float | None = None
+
+
+class Check(ABC):
+    """One look at the motion. `fresh` asks for a full look, no cached knowledge (e.g. before a resume)."""
+
+    name: str = "check"
+    only_when_blocked: bool = False  # a close check that matters only while the path is blocked
+
+    @abstractmethod
+    def __call__(self, view: MotionView, fresh: bool = False) -> Verdict: ...
+
+    def clear(self) -> Verdict:
+        return Verdict(self.name, True)
+
+
+class MapPathCheck(Check):
+    """The remaining path against the occupancy map (where people show up): every cycle, boolean, no distances."""
+
+    name = "map"
+
+    def __init__(self, checker: CollisionChecker):
+        self.checker = checker
+
+    def __call__(self, view: MotionView, fresh: bool = False) -> Verdict:
+        if len(view.path) < 2 or self.checker.path_valid(view.path, octree_only=True):
+            return self.clear()
+        return Verdict(self.name, False, "an obstacle is on the remaining path")
+
+
+class ScenePathCheck(Check):
+    """The remaining path against static objects, attachments and the robot itself.
+
+    A planned path was checked against all of them; a clear verdict holds until the scene changes (any edit) or the
+    path is read from other trajectories, so it is remembered per (scene version, trajectories).
+    """
+
+    name = "scene"
+
+    def __init__(self, checker: CollisionChecker):
+        self.checker = checker
+        self._clear_for: tuple | None = None
+
+    def __call__(self, view: MotionView, fresh: bool = False) -> Verdict:
+        version = self.checker.world.snapshot().version
+        memo = (version, view.key)
+        if not fresh and memo == self._clear_for:
+            return self.clear()
+        result = self.checker.check_path(view.path) if len(view.path) >= 2 else None
+        if result is None or result.valid:
+            self._clear_for = memo
+            return self.clear()
+        self._clear_for = None
+        return Verdict(self.name, False, f"the remaining path collides: {result.contact}", result.contact)
+
+
+class SafetyDistanceCheck(Check):
+    """The measured arm against the map, inflated by the safety distance: closer than that, brake."""
+
+    name = "safety_distance"
+
+    def __init__(self, checker: CollisionChecker, safety: CollisionChecker, distance: float):
+        self.checker, self.safety, self.distance = checker, safety, distance
+
+    def __call__(self, view: MotionView, fresh: bool = False) -> Verdict:
+        if self.safety.is_valid(view.q, octree_only=True):
+            return self.clear()
+        c = self.checker.clearance(view.q, max_distance=max(0.2, 2 * self.distance))
+        reason = f"{c.body} is {c.distance:.3f} m from {c.obstacle}, within the safety distance"
+        return Verdict(self.name, False, reason, None, c.distance)
+
+
+class StopRegionCheck(Check):
+    """The stretch a brake decided at the next check would still travel: blocked there, this is the last chance.
+
+    The next check may come later than the rate says (a busy machine): the gap between checks seen is used.
+    """
+
+    name = "stop_region"
+    only_when_blocked = True
+
+    def __init__(self, checker: CollisionChecker, generator: TrajectoryGenerator, min_gap: float, brake_latency: float):
+        self.checker, self.gen = checker, generator
+        self.min_gap, self.brake_latency = min_gap, brake_latency
+
+    def __call__(self, view: MotionView, fresh: bool = False) -> Verdict:
+        start, traj = view.segment
+        horizon = max(self.min_gap, 2.0 * view.check_gap, 0.03) + self.brake_latency
+        t = min(view.now - start + horizon, traj.duration)
+        stop = self.gen.brake(traj, t)
+        s_a, s_b = traj.s_at(view.now - start), stop.s_at(stop.duration)
+        if s_b - s_a < 1e-6:
+            return self.clear()
+        pts = traj.curve.eval(np.linspace(s_a, s_b, max(2, int((s_b - s_a) / 0.02) + 2)))
+        result = self.checker.check_path(pts)
+        if result.valid:
+            return self.clear()
+        reason = f"braking now is the last chance to stop before the obstacle ({result.contact})"
+        return Verdict(self.name, False, reason, result.contact)

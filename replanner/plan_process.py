@@ -1,0 +1,79 @@
+"""The planning child process: `python -m replanner.plan_process <request fd> <cancel fd>` (planning.ProcessWorker).
+
+With the GIL, a planner thread and the monitor would share one core: the child plans on the other one. It builds
+the same stack from the config it is sent, mirrors the world it is given with each job, and answers every job
+with (kind, job number, data): the finished trajectory and its PlanResult, or the error itself (data included).
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+from multiprocessing.connection import Connection
+
+import numpy as np
+
+
+def serve(conn: Connection, cancel_conn: Connection) -> None:
+    from .config import parse_config
+    from .planning.worker import error_for_the_wire, plan_and_time
+    from .stack import build_stack
+    from .world.occupancy import OccupancyMap
+
+    cfg_data, seed = conn.recv()
+    cfg = parse_config(cfg_data)
+    stack = build_stack(cfg, seed=seed, static=(), cameras=False)
+    stack.robot.self_clearance_tables()
+    world = stack.world
+    cancel = threading.Event()
+    current = [0]
+
+    def listen_for_cancels() -> None:
+        while True:
+            try:
+                job = cancel_conn.recv()
+            except (EOFError, OSError):
+                return
+            if job == current[0]:
+                cancel.set()
+
+    threading.Thread(target=listen_for_cancels, daemon=True).start()
+    conn.send(("ready", 0, None))
+    while True:
+        try:
+            req = conn.recv()
+        except (EOFError, OSError):
+            return  # the parent is gone
+        if req is None:
+            return
+        current[0] = req.job
+        cancel.clear()
+        try:
+            if req.static is not None or req.attachments is not None:
+                for name in world.names():  # not world.clear(): that would drop the occupancy map too
+                    world.remove(name)
+                for name, shape, pose in req.static or ():
+                    world.add(name, shape, pose)
+                for name, shape, link, T, touch, support in req.attachments or ():
+                    world.attach_new(name, shape, link, T, touch, support)
+            if req.occupancy == ():
+                world.set_occupancy(None)
+            elif req.occupancy is not None:
+                keys, res, stamp = req.occupancy
+                cell = cfg.collision.broadphase_cell
+                world.set_occupancy(
+                    OccupancyMap(keys.astype(np.int64), res, stamp=stamp, broadphase_cell=cell, trusted=True)
+                )
+            answer = ("ok", req.job, plan_and_time(stack.planner, stack.generator, req.plan, cancel))
+        except Exception as err:  # the parent must always get an answer
+            answer = ("error", req.job, error_for_the_wire(err))
+        try:
+            conn.send(answer)
+        except (EOFError, OSError):
+            return
+
+
+if __name__ == "__main__":
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C reaches the whole group: the parent decides, EOF ends us
+    serve(Connection(int(sys.argv[1])), Connection(int(sys.argv[2])))

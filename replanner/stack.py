@@ -1,0 +1,110 @@
+"""One function builds the stack from a config; the service, the kinematic sim, the planning process and the benches
+all use it.
+
+    robot → world (static scene) → checker → planner → generator [→ perception] [→ monitor, plan worker, controller]
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Literal
+
+from .config import ReplannerConfig
+from .control.controller import Controller
+from .monitor import Monitor, build_monitor
+from .perception import Perception
+from .planning import Planner, PlanWorker, ProcessWorker, ThreadWorker
+from .trajectory import Trajectory, TrajectoryGenerator
+from .world.collision import CollisionChecker
+from .world.geometry import Shape
+from .world.robot import RobotModel
+from .world.scene import World, scene_from_config
+
+
+@dataclass
+class Stack:
+    """The parts of one robot's stack; those not asked for are None."""
+
+    cfg: ReplannerConfig
+    robot: RobotModel
+    world: World
+    checker: CollisionChecker
+    planner: Planner
+    generator: TrajectoryGenerator
+    perception: Perception | None = None
+    monitor: Monitor | None = None
+    worker: PlanWorker | None = None
+    controller: Controller | None = None
+
+    def on_joint_state(self, js) -> None:
+        """A measured joint state for everything that needs one (perception's self-filter, the controller)."""
+        if self.perception is not None:
+            self.perception.add_joint_state(js.stamp, js.position)
+        if self.controller is not None:
+            self.controller.on_joint_state(js)
+
+    def close(self) -> None:
+        """Stop the controller and its plan worker (a planning process exits)."""
+        if self.controller is not None:
+            self.controller.stop()
+        elif self.worker is not None:
+            self.worker.close()
+
+
+def build_stack(
+    cfg: ReplannerConfig,
+    *,
+    robot: RobotModel | None = None,
+    static: Iterable[tuple[str, Shape, object]] | None = None,
+    seed: int | None = None,
+    cameras: bool = True,
+    execute: Callable[[Trajectory, float], None] | None = None,
+    plan_in: Literal["process", "thread"] | None = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> Stack:
+    """Build the parts `cfg` describes.
+
+    Args:
+        robot: a robot model already loaded from cfg.robot (saves loading the URDF again).
+        static: (name, shape, T_base_object) objects for the world; default: the config's `scene:`.
+        seed: the planner's seed (reproducible plans); also the planning process's.
+        cameras: build perception for the configured sensors (False: static objects only).
+        execute: execute(trajectory, start [clock s]) sends trajectories to the robot; given, the stack gets a
+            monitor, a plan worker and a controller (not started).
+        plan_in: "process" (a child process, the second core) or "thread"; default: controller.planning_process.
+        clock: the controller's clock [s], shared with the robot and the sensors.
+    """
+    robot = robot or RobotModel.from_config(cfg.robot)
+    world = World(robot)
+    for name, shape, pose in scene_from_config(cfg) if static is None else static:
+        world.add(name, shape, pose)
+    checker = CollisionChecker.from_config(robot, world, cfg.collision)
+    planner = Planner.from_config(checker, cfg.planning, seed=seed)
+    generator = TrajectoryGenerator.from_config(robot, checker, cfg.planning)
+    stack = Stack(cfg, robot, world, checker, planner, generator)
+    if cameras and cfg.perception is not None and cfg.perception.sensors:
+        stack.perception = Perception.from_config(cfg, robot, world)
+    if execute is None:
+        return stack
+    stack.monitor = build_monitor(checker, generator, cfg.controller, cfg.collision.allowed_contacts)
+    plan_in = plan_in or ("process" if cfg.controller.planning_process else "thread")
+    stack.worker = ProcessWorker(cfg, seed) if plan_in == "process" else ThreadWorker(planner, generator)
+    sensors = [s.name for s in cfg.perception.sensors] if stack.perception is not None else []
+    stack.controller = Controller(
+        robot,
+        checker,
+        planner,
+        generator,
+        stack.monitor,
+        stack.worker,
+        execute,
+        cfg.controller,
+        sensors=sensors,
+        clock=clock,
+        default_deadline=cfg.planning.deadline,
+    )
+    if stack.perception is not None:
+        stack.perception.subscribe(stack.controller.on_map)
+    return stack

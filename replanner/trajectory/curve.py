@@ -1,0 +1,275 @@
+"""The geometry of a trajectory: the planner's polyline with every corner rounded by a quintic blend.
+
+A blend keeps within `tube_radius` of the polyline and has continuous curvature, so joint acceleration stays
+continuous at speed. Each piece bounds |q'|, |q''|, |q'''| over itself; the time law takes its speed,
+acceleration and jerk bounds from them.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from functools import lru_cache
+
+import numpy as np
+
+from ..errors import TrajectoryError
+
+EPS = 1e-9
+BLEND_PARTS = 4  # a blend is timed in parts: its ends are straighter than its middle
+SPLICE_PARTS = 8  # a splice's transition likewise, in finer parts: it may be tightly curved
+
+
+class Piece(ABC):
+    """One piece of the curve over local arc parameter x in [0, length]."""
+
+    length: float
+    m: np.ndarray  # (3, dof) bounds of |q'|, |q''|, |q'''| over the piece
+
+    @abstractmethod
+    def eval(self, x: np.ndarray, order: int) -> np.ndarray:  # (n, dof)
+        """The derivative of this order with respect to x, at local parameters x (n,)."""
+
+
+class Line(Piece):
+    def __init__(self, a: np.ndarray, b: np.ndarray):
+        self.a = np.asarray(a, dtype=float)
+        diff = np.asarray(b, dtype=float) - self.a
+        self.length = float(np.linalg.norm(diff))
+        self.d = diff / self.length if self.length > EPS else np.zeros_like(diff)
+        self.m = np.vstack([np.abs(self.d), np.zeros_like(self.d), np.zeros_like(self.d)])
+
+    def eval(self, x, order):
+        x = np.asarray(x, dtype=float)[:, None]
+        if order == 0:
+            return self.a + x * self.d
+        if order == 1:
+            return np.broadcast_to(self.d, (len(x), len(self.d))).copy()
+        return np.zeros((len(x), len(self.d)))
+
+
+def quintic_coefficients(p0, v0, a0, p1, v1, a1) -> np.ndarray:
+    """Coefficients c (..., 6, dof) of q(u) = sum c_k u^k on [0, 1] with the given ends (derivatives in u).
+
+    The ends may be batched: arrays (..., dof) give one quintic per leading index.
+    """
+    c0, c1, c2 = np.broadcast_arrays(p0, v0, np.asarray(a0) / 2)
+    d = p1 - c0 - c1 - c2
+    e = v1 - c1 - 2 * c2
+    f = a1 - 2 * c2
+    c3 = 10 * d - 4 * e + f / 2
+    c4 = -15 * d + 7 * e - f
+    c5 = 6 * d - 3 * e + f / 2
+    return np.stack(np.broadcast_arrays(c0, c1, c2, c3, c4, c5), axis=-2)
+
+
+_POWERS = np.arange(6)
+# d^k/du^k of u^n is n!/(n-k)! u^(n-k): multipliers and exponents per derivative order k = 0..4
+_FALLING = [np.array([np.prod(np.arange(n - k + 1, n + 1)) if n >= k else 0.0 for n in range(6)]) for k in range(5)]
+_EXPONENTS = [np.clip(_POWERS - k, 0, None) for k in range(5)]
+
+
+def basis(u: np.ndarray, order: int) -> np.ndarray:
+    """The matrix (n, 6) that maps quintic coefficients to the order-th derivative at parameters u (n,)."""
+    return np.asarray(u, dtype=float)[:, None] ** _EXPONENTS[order] * _FALLING[order]
+
+
+def _du(c: np.ndarray, u: np.ndarray, order: int) -> np.ndarray:
+    """The order-th derivative (n, dof) of the quintic with coefficients c (6, dof) at parameters u (n,)."""
+    return basis(u, order) @ c
+
+
+class QuinticPiece(Piece):
+    """q(x) = Q(u0 + x / ell), Q a quintic on [0, 1]; this piece covers u in [u0, u1], x in [0, ell (u1 - u0)]."""
+
+    _SAMPLES = 65
+
+    def __init__(self, coeffs: np.ndarray, ell: float, u0: float = 0.0, u1: float = 1.0, m: np.ndarray | None = None):
+        self.c = coeffs
+        self.ell = float(ell)
+        self.u0 = float(u0)
+        self.length = float(ell) * (u1 - u0)
+        self.m = quintic_bounds(coeffs, self.ell, np.array([u0, u1], dtype=float))[0] if m is None else m
+
+    def eval(self, x, order):
+        u = self.u0 + np.asarray(x, dtype=float) / self.ell
+        return _du(self.c, u, order) / self.ell**order
+
+    @classmethod
+    def split(cls, coeffs: np.ndarray, ell: float, parts: int, m: np.ndarray | None = None) -> list[QuinticPiece]:
+        """The curve in `parts` pieces, each with its own derivative bounds (tighter where it is straighter).
+
+        m: those bounds (parts, 3, dof) if already known (see quintic_bounds).
+        """
+        edges = np.linspace(0.0, 1.0, parts + 1)
+        m = quintic_bounds(coeffs, float(ell), edges) if m is None else m
+        return [cls(coeffs, ell, a, b, m[i]) for i, (a, b) in enumerate(zip(edges[:-1], edges[1:]))]
+
+
+@lru_cache(maxsize=16)
+def _sampling(edges: tuple[float, ...]) -> tuple[list[np.ndarray], np.ndarray]:
+    """Basis matrices of derivatives 1..4 at the samples of each [edges[i], edges[i+1]], and the sample spacing."""
+    e = np.asarray(edges)
+    S = QuinticPiece._SAMPLES
+    u = (e[:-1, None] + (e[1:] - e[:-1])[:, None] * np.linspace(0.0, 1.0, S)[None]).ravel()
+    return [basis(u, k) for k in (1, 2, 3, 4)], 0.5 / (S - 1) * (e[1:] - e[:-1])
+
+
+def quintic_bounds(c: np.ndarray, ell, edges: np.ndarray) -> np.ndarray:
+    """Bounds (..., parts, 3, dof) of the first three derivatives' magnitudes over each [edges[i], edges[i+1]] of u.
+
+    c: coefficients (..., 6, dof), ell: arc scale (...,). Sampled maxima plus the change possible between samples
+    (the next derivative's maximum x half the spacing).
+    """
+    mats, spacing = _sampling(tuple(float(x) for x in edges))
+    parts, S = len(spacing), QuinticPiece._SAMPLES
+    ell = np.asarray(ell, dtype=float)[..., None, None]
+    peak = []
+    for k, D in enumerate(mats, start=1):
+        vals = np.abs(D @ c)  # (..., parts * S, dof)
+        peak.append(vals.reshape(*vals.shape[:-2], parts, S, vals.shape[-1]).max(axis=-2) / ell**k)
+    h = spacing[:, None] * ell
+    return np.stack([peak[0] + h * peak[1], peak[1] + h * peak[2], peak[2] + h * peak[3]], axis=-2)
+
+
+class Curve:
+    """A path q(s) made of pieces; s in [0, length]."""
+
+    def __init__(self, pieces: list[Piece], polyline: np.ndarray):
+        self.pieces = [p for p in pieces if p.length > EPS]
+        if not self.pieces:
+            raise TrajectoryError("the path has zero length")
+        self.starts = np.concatenate([[0.0], np.cumsum([p.length for p in self.pieces])])
+        self.length = float(self.starts[-1])
+        self.polyline = polyline  # the path the curve was built around (collision-checked)
+
+    def piece_at(self, s: np.ndarray) -> np.ndarray:
+        return np.clip(np.searchsorted(self.starts, s, side="right") - 1, 0, len(self.pieces) - 1)
+
+    def eval(self, s, order: int = 0) -> np.ndarray:
+        s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.length)
+        idx = self.piece_at(s)
+        out = np.empty((len(s), len(self.polyline[0])))
+        for k in np.unique(idx):
+            sel = idx == k
+            out[sel] = self.pieces[k].eval(s[sel] - self.starts[k], order)
+        return out
+
+    def samples(self, per_curve: int = 24) -> np.ndarray:
+        """Points along the curve: piece ends, plus `per_curve` inside each curved piece (for collision checks)."""
+        pts = [self.pieces[0].eval(np.array([0.0]), 0)]
+        for p in self.pieces:
+            n = 1 if isinstance(p, Line) else per_curve
+            pts.append(p.eval(np.linspace(0, p.length, n + 1)[1:], 0))
+        return np.vstack(pts)
+
+
+def _deviation_factor(d_in: np.ndarray, d_out: np.ndarray) -> float:
+    """Max distance from the unit blend (b = 1) to the corner's two segments."""
+    corner = np.zeros_like(d_in)
+    A, B = -d_in, d_out
+    ell = float(np.linalg.norm(B - A))
+    c = quintic_coefficients(A, ell * d_in, np.zeros_like(A), B, ell * d_out, np.zeros_like(A))
+    u = np.linspace(0, 1, 65)[:, None]
+    pts = (u ** np.arange(6)) @ c
+    return float(np.minimum(_dist_to_segment(pts, A, corner), _dist_to_segment(pts, corner, B)).max())
+
+
+def _dist_to_segment(P: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ab = b - a
+    t = np.clip(((P - a) @ ab) / max(ab @ ab, EPS), 0.0, 1.0)
+    return np.linalg.norm(P - (a + t[:, None] * ab), axis=1)
+
+
+def distance_to_polyline(P: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """Distance (n,) of points P (n, dof) to the polyline W (m, dof)."""
+    d = np.full(len(P), np.inf)
+    for a, b in zip(W[:-1], W[1:]):
+        d = np.minimum(d, _dist_to_segment(P, a, b))
+    return d
+
+
+def progress_along(P: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """Arc-length position (n,) of the closest point of the polyline W to each point of P."""
+    seg = np.linalg.norm(np.diff(W, axis=0), axis=1)
+    starts = np.concatenate([[0.0], np.cumsum(seg)])
+    best_d = np.full(len(P), np.inf)
+    best_s = np.zeros(len(P))
+    for k, (a, b) in enumerate(zip(W[:-1], W[1:])):
+        ab = b - a
+        # before the first waypoint progress is negative: moving away from the path's start counts as backwards
+        t = np.clip(((P - a) @ ab) / max(ab @ ab, EPS), -np.inf if k == 0 else 0.0, 1.0)
+        d = np.linalg.norm(P - (a + np.maximum(t, 0.0)[:, None] * ab), axis=1)
+        better = d < best_d - 1e-12
+        best_d[better] = d[better]
+        best_s[better] = starts[k] + t[better] * seg[k]
+    return best_s
+
+
+def blended_curve(
+    W: np.ndarray, tube_radius: float, blend_scale: np.ndarray | None = None, head: list[Piece] | None = None
+) -> Curve:
+    """Lines between the waypoints W with every interior corner rounded within `tube_radius`.
+
+    blend_scale (m,) shrinks individual blends (1 = as large as the tube allows, 0 = stop at the corner).
+    head: pieces that come before W[0] (a splice's transition).
+    """
+    W = np.asarray(W, dtype=float)
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(W, axis=0), axis=1) > 1e-9])
+    W = W[keep]
+    if blend_scale is not None:
+        blend_scale = np.asarray(blend_scale)[keep]
+    n = len(W)
+    if n < 2:
+        raise TrajectoryError("a path needs two distinct waypoints")
+    seg = np.diff(W, axis=0)
+    L = np.linalg.norm(seg, axis=1)
+    D = seg / L[:, None]
+    b = np.zeros(n)
+    for k in range(1, n - 1):
+        if D[k - 1] @ D[k] < -0.98:  # turning back: no blend can do it, stop at the corner
+            continue
+        f = _deviation_factor(D[k - 1], D[k])
+        size = tube_radius / f if f > EPS else np.inf
+        scale = 1.0 if blend_scale is None else float(blend_scale[k])
+        b[k] = scale * min(size, 0.45 * L[k - 1], 0.45 * L[k])
+    pieces: list[Piece] = list(head or [])
+    cursor = W[0]
+    for k in range(1, n):
+        end = W[k] - b[k] * D[k - 1] if k < n - 1 else W[k]
+        pieces.append(Line(cursor, end))
+        if k < n - 1 and b[k] > EPS:
+            A, B = end, W[k] + b[k] * D[k]
+            ell = float(np.linalg.norm(B - A))
+            z = np.zeros_like(A)
+            pieces += QuinticPiece.split(quintic_coefficients(A, ell * D[k - 1], z, B, ell * D[k], z), ell, BLEND_PARTS)
+            cursor = B
+        else:
+            cursor = end
+    return Curve(pieces, W)
+
+
+def clip_curve(curve: Curve, a: float, b: float) -> list[Piece]:
+    """The pieces of `curve` between arc positions a and b, cut where needed."""
+    out: list[Piece] = []
+    for k, piece in enumerate(curve.pieces):
+        lo, hi = float(curve.starts[k]), float(curve.starts[k + 1])
+        x0, x1 = max(a, lo) - lo, min(b, hi) - lo
+        if x1 - x0 <= 1e-12:
+            continue
+        if isinstance(piece, Line):
+            out.append(Line(piece.eval(np.array([x0]), 0)[0], piece.eval(np.array([x1]), 0)[0]))
+        else:
+            out.append(QuinticPiece(piece.c, piece.ell, piece.u0 + x0 / piece.ell, piece.u0 + x1 / piece.ell))
+    return out
+
+
+def point_along(W: np.ndarray, length: float) -> tuple[np.ndarray, int]:
+    """The point at arc length `length` along W and the index of its segment."""
+    seg = np.linalg.norm(np.diff(W, axis=0), axis=1)
+    acc = 0.0
+    for k, L in enumerate(seg):
+        if acc + L >= length or k == len(seg) - 1:
+            f = np.clip((length - acc) / L, 0.0, 1.0)
+            return W[k] + f * (W[k + 1] - W[k]), k
+        acc += L
+    return W[-1], len(seg) - 1

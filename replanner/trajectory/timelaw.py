@@ -1,0 +1,303 @@
+"""The time law s(t) along a curve: jerk-limited, piece by piece, with Ruckig's local state-to-state solver.
+
+Ruckig's intermediate waypoints call a cloud service: only its state-to-state calculations are used, with
+min_velocity 0, so the arm never moves backwards along its path. Joint limits become bounds on the path speed,
+acceleration and jerk per piece: with q' = dq/ds etc., q_dot = q' s_dot, q_ddot = q' s_ddot + q'' s_dot^2,
+q_dddot = q' s_dddot + 3 q'' s_dot s_ddot + q''' s_dot^3.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import ruckig
+
+from ..errors import TrajectoryError
+from .curve import EPS, Curve, Piece
+
+CURVE_SHARE = 0.75  # of each joint's acceleration a blend may use for its curvature at full blend speed
+
+
+class PieceTimingError(TrajectoryError):
+    """Ruckig could not time one piece: `result` is its answer (None if it refused the input), `inputs` what it got."""
+
+    def __init__(self, message: str, result: str | None = None, inputs: dict | None = None):
+        self.result = result
+        self.inputs = dict(inputs or {})
+        super().__init__(message)
+
+
+@dataclass(frozen=True)
+class Limits:
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    jerk: np.ndarray
+
+
+def piece_bounds(piece: Piece, lim: Limits) -> tuple[float, float, float]:
+    """(max s_dot, max s_ddot, max s_dddot) on a piece that keep every joint within its limits."""
+    return tuple(bounds_of([piece], lim)[0])
+
+
+def bounds_of(pieces: list[Piece], lim: Limits) -> np.ndarray:
+    """piece_bounds of many pieces at once (P, 3); each piece remembers its bounds for the last limits asked."""
+    out = np.empty((len(pieces), 3))
+    todo = []
+    for i, p in enumerate(pieces):
+        memo = getattr(p, "_bounds_memo", None)
+        if memo is not None and memo[0] is lim:
+            out[i] = memo[1]
+        else:
+            todo.append(i)
+    if todo:
+        out[todo] = speed_bounds(np.stack([pieces[i].m for i in todo]), lim)
+        for i in todo:
+            pieces[i]._bounds_memo = (lim, out[i])
+    return out
+
+
+def speed_bounds(m: np.ndarray, lim: Limits, strict: bool = True) -> np.ndarray:
+    """Path speed, acceleration and jerk bounds (P, 3) from derivative bounds m (P, 3, dof) of P pieces.
+
+    A piece too sharply curved to be timed raises TrajectoryError, or with strict=False gets bounds 0.
+    """
+    m1, m2, m3 = m[:, 0], m[:, 1], m[:, 2]
+    v, a, j = lim.velocity, lim.acceleration, lim.jerk
+    on = m1 > EPS
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sv = np.where(on, v / m1, np.inf).min(axis=1)
+        out = np.stack([sv, np.where(on, a / m1, np.inf).min(axis=1), np.where(on, j / m1, np.inf).min(axis=1)], 1)
+        curved = np.flatnonzero(np.any(m2 > EPS, axis=1) | np.any(m3 > EPS, axis=1))
+        if not len(curved):
+            return out
+        m1, m2, m3, on = m1[curved], m2[curved], m3[curved], on[curved]
+        # curved: most of the acceleration and a quarter of the jerk go to following the curve at speed
+        sc = np.minimum(
+            sv[curved],
+            np.minimum(
+                np.where(m2 > EPS, np.sqrt(CURVE_SHARE * a / m2), np.inf).min(axis=1),
+                np.where(m3 > EPS, np.cbrt(0.25 * j / m3), np.inf).min(axis=1),
+            ),
+        )
+        cols = [sc]
+        for _ in range(29):  # 0.8 at a time, as far as 0.8^29: the first speed whose leftovers stay positive
+            cols.append(cols[-1] * 0.8)
+        SC = np.stack(cols, axis=1)[:, :, None]  # (C, 30, 1)
+        SA = np.where(on[:, None], (a - m2[:, None] * SC**2) / m1[:, None], np.inf).min(axis=2)
+        left = j - m3[:, None] * SC**3 - 3 * m2[:, None] * SC * SA[..., None]
+        SJ = np.where(on[:, None], left / m1[:, None], np.inf).min(axis=2)
+        ok = (SA > 0) & (SJ > 0)
+    timable = ok.any(axis=1)
+    if strict and not timable.all():
+        raise TrajectoryError("a path piece is too sharply curved to be timed within the joint limits")
+    k = ok.argmax(axis=1)
+    rows = np.arange(len(curved))
+    out[curved] = np.stack([SC[rows, k, 0], SA[rows, k], SJ[rows, k]], axis=1) * timable[:, None]
+    return out
+
+
+@dataclass(frozen=True)
+class TimeLaw:
+    """Piecewise constant-jerk motion along s: phase k starts at t[k] with (s, v, a) and jerk j."""
+
+    t: np.ndarray
+    s: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    j: np.ndarray
+    duration: float
+
+    def eval(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+        k = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1)
+        dt = t - self.t[k]
+        j, a, v = self.j[k], self.a[k], self.v[k]
+        s = self.s[k] + v * dt + a * dt**2 / 2 + j * dt**3 / 6
+        return s, v + a * dt + j * dt**2 / 2, a + j * dt, j
+
+
+def _phases_of(traj: ruckig.Trajectory, t0: float) -> list[tuple[float, float, float, float, float, float]]:
+    """(t_start, duration, s, v, a, j) of every non-empty phase of a 1-DoF Ruckig trajectory."""
+    out = []
+    pr = traj.profiles[0][0]
+    t = t0
+    br = pr.brake
+    if br.duration > 0:
+        for i in range(2):
+            if br.t[i] > 0:
+                out.append((t, br.t[i], br.p[i], br.v[i], br.a[i], br.j[i]))
+                t += br.t[i]
+    for i in range(7):
+        if pr.t[i] > 0:
+            out.append((t, pr.t[i], pr.p[i], pr.v[i], pr.a[i], pr.j[i]))
+            t += pr.t[i]
+    return out
+
+
+def min_distance(va: float, vb: float, a: float, j: float) -> float:
+    """Shortest path length to change speed va -> vb from rest acceleration to rest acceleration."""
+    dv = abs(vb - va)
+    T = dv / a + a / j if dv >= a * a / j else 2 * math.sqrt(dv / j)
+    return (va + vb) / 2 * T
+
+
+def max_speed(v_other: float, length: float, a: float, j: float, cap: float) -> float:
+    """Highest speed (<= cap) that can change to v_other within `length`."""
+    if min_distance(cap, v_other, a, j) <= length:
+        return cap
+    lo, hi = min(v_other, cap), cap
+    for _ in range(40):
+        mid = (lo + hi) / 2
+        if min_distance(mid, v_other, a, j) <= length:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+class _Solver:
+    def __init__(self):
+        self.otg = ruckig.Ruckig(1)
+        self.inp = ruckig.InputParameter(1)
+        self.out = ruckig.Trajectory(1)
+
+    def reach(self, s0, v0, a0, s1, v1, vmax, amax, jmax) -> ruckig.Trajectory:
+        """Rest acceleration at s1 with speed v1, from (s0, v0, a0); raises PieceTimingError with Ruckig's answer."""
+        i = self.inp
+        i.control_interface = ruckig.ControlInterface.Position
+        i.current_position, i.current_velocity, i.current_acceleration = [s0], [v0], [a0]
+        i.target_position, i.target_velocity, i.target_acceleration = [s1], [v1], [0.0]
+        i.max_velocity, i.max_acceleration, i.max_jerk = [vmax], [amax], [jmax]
+        i.min_velocity = [0.0]
+        inputs = {"s0": s0, "v0": v0, "a0": a0, "s1": s1, "v1": v1, "vmax": vmax, "amax": amax, "jmax": jmax}
+        try:
+            res = self.otg.calculate(i, self.out)
+        except (RuntimeError, ruckig.RuckigError) as err:
+            raise PieceTimingError(f"Ruckig refused the input: {err}", None, inputs) from None
+        if res not in (ruckig.Result.Working, ruckig.Result.Finished):
+            raise PieceTimingError(f"Ruckig answered {res.name}", res.name, inputs)
+        ext = self.out.position_extrema[0]
+        if ext.max > s1 + 1e-7 or ext.min < s0 - 1e-7:
+            raise PieceTimingError("the motion would overshoot the piece or back up", res.name, inputs)
+        return self.out
+
+    def stop(self, s0, v0, a0, amax, jmax) -> ruckig.Trajectory:
+        i = self.inp
+        i.control_interface = ruckig.ControlInterface.Velocity
+        i.current_position, i.current_velocity, i.current_acceleration = [s0], [v0], [a0]
+        i.target_velocity, i.target_acceleration = [0.0], [0.0]
+        i.max_velocity, i.max_acceleration, i.max_jerk = [max(v0, 1e-9) * 2], [amax], [jmax]
+        self.otg.calculate(i, self.out)
+        return self.out
+
+
+def _speed_caps(curve: Curve, lim: Limits, s0: float, v0: float, s_end: float, end_cap: float | None):
+    """Pieces ks from s0 to s_end, their bounds, edges, and the highest speed at each edge the arm can slow down from.
+
+    end_cap: the speed allowed at s_end (0: come to rest there; None: the last piece's own speed bound).
+    """
+    first = int(curve.piece_at(np.array([s0]))[0])
+    last = int(curve.piece_at(np.array([s_end - 1e-12]))[0])
+    ks = list(range(first, last + 1))
+    bounds = bounds_of(curve.pieces[first : last + 1], lim).tolist()
+    edges = [s0] + [float(curve.starts[k + 1]) for k in ks[:-1]] + [s_end]
+    n = len(ks)
+    cap = np.empty(n + 1)
+    cap[0] = v0
+    for i in range(1, n):
+        cap[i] = min(bounds[i - 1][0], bounds[i][0])
+    cap[n] = bounds[-1][0] if end_cap is None else end_cap
+    for i in range(1, n):  # two pieces meeting at an angle (an unblended corner): come to rest there
+        before = curve.pieces[ks[i - 1]]
+        t_in = before.eval(np.array([before.length]), 1)[0]
+        t_out = curve.pieces[ks[i]].eval(np.array([0.0]), 1)[0]
+        if np.linalg.norm(t_in - t_out) > 1e-6:
+            cap[i] = 0.0
+    for i in range(n - 1, 0, -1):  # backward: able to slow down in time
+        vmax, amax, jmax = bounds[i]
+        cap[i] = min(cap[i], max_speed(cap[i + 1], edges[i + 1] - edges[i], amax, jmax, max(cap[i], cap[i + 1])))
+    return ks, bounds, edges, cap
+
+
+def entry_speed(curve: Curve, lim: Limits, pieces: int) -> float:
+    """The highest speed [along s] at s = 0 from which the first `pieces` pieces can be followed within the limits.
+
+    What lies beyond them does not constrain it: a necessary condition for timing the whole curve, and a cheap one.
+    """
+    s_end = float(curve.starts[min(pieces, len(curve.pieces))])
+    ks, bounds, edges, cap = _speed_caps(curve, lim, 0.0, 0.0, s_end, None)
+    vmax, amax, jmax = bounds[0]
+    return min(vmax, max_speed(cap[1], edges[1] - edges[0], amax, jmax, vmax))
+
+
+def time_law(curve: Curve, lim: Limits, s0: float, v0: float, a0: float, s_end: float) -> TimeLaw:
+    """Jerk-limited s(t) from (s0, v0, a0) to rest at s_end, piece by piece, never backwards."""
+    ks, bounds, edges, cap = _speed_caps(curve, lim, s0, v0, s_end, 0.0)
+    n = len(ks)
+    for i in range(1, n):  # forward: able to speed up in time
+        vmax, amax, jmax = bounds[i - 1]
+        cap[i] = min(cap[i], max_speed(cap[i - 1], edges[i] - edges[i - 1], amax, jmax, max(cap[i], cap[i - 1])))
+    solver = _Solver()
+    phases: list[tuple] = []
+    t, a_now = 0.0, a0
+    for i in range(n):
+        vmax, amax, jmax = bounds[i]
+        target = cap[i + 1]
+        start_v = cap[i]
+        sol = None
+        for _ in range(25):
+            try:
+                sol = solver.reach(edges[i], start_v, a_now, edges[i + 1], target, vmax, amax, jmax)
+                break
+            except PieceTimingError as err:
+                if target <= 1e-9:
+                    raise PieceTimingError(
+                        f"cannot time path piece {ks[i]} from speed {start_v:.3f} within the limits ({err})",
+                        err.result,
+                        err.inputs,
+                    ) from None
+            target *= 0.7  # the piece is too short for this handover speed
+        if sol is None:
+            raise TrajectoryError(f"cannot time path piece {ks[i]} from speed {start_v:.3f} within the limits")
+        cap[i + 1] = target
+        phases += _phases_of(sol, t)
+        t += sol.duration
+        a_now = 0.0
+    return law_from_phases(phases, t, s_end)
+
+
+def law_from_phases(phases, duration: float, s_end: float) -> TimeLaw:
+    if not phases:
+        phases = [(0.0, 0.0, s_end, 0.0, 0.0, 0.0)]
+    arr = np.array(phases, dtype=float)
+    return TimeLaw(arr[:, 0], arr[:, 2], arr[:, 3], arr[:, 4], arr[:, 5], float(duration))
+
+
+def slowest_entry(bounds: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """An upper bound (L,) of the speed at the start of L chains of pieces from which each can be followed.
+
+    bounds (L, P, 3): each piece's (speed, acceleration, jerk) bounds; lengths (L, P). What follows a chain does
+    not constrain it, so this is a cheap necessary condition (closed form, all chains at once) for `entry_speed`.
+    """
+    cap = bounds[:, -1, 0]
+    for i in range(bounds.shape[1] - 1, -1, -1):
+        cap = np.minimum(bounds[:, i, 0], _reachable_from(cap, lengths[:, i], bounds[:, i, 1], bounds[:, i, 2]))
+    return cap * (1.0 + 1e-6) + 1e-9  # lenient: a screen must never refuse what the exact check admits
+
+
+def _reachable_from(vb: np.ndarray, length: np.ndarray, a: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """The highest speed va >= vb that slows to vb within `length` (rest acceleration at both ends), closed form.
+
+    min_distance: with dv = va - vb, length = (vb + dv/2)(dv/a + a/j) when dv >= a^2/j (a quadratic in dv), else
+    length = (vb + dv/2) 2 sqrt(dv/j), a cubic in x = sqrt(dv/j): j x^3 + 2 vb x = length.
+    """
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        A, B, C = 1.0 / (2.0 * a), vb / a + a / (2.0 * j), vb * a / j - length
+        dv_a = (-B + np.sqrt(np.maximum(B * B - 4.0 * A * C, 0.0))) / (2.0 * A)
+        p, q = 2.0 * vb / j, -length / j
+        disc = np.sqrt(q * q / 4.0 + p**3 / 27.0)
+        x = np.cbrt(-q / 2.0 + disc) + np.cbrt(-q / 2.0 - disc)
+        dv = np.where(dv_a >= a * a / j, dv_a, j * x * x)
+    return vb + np.maximum(np.nan_to_num(dv, nan=np.inf), 0.0)

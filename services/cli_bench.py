@@ -1,0 +1,283 @@
+"""`replanner bench ...`: fixed seeds, printed figures (median, p95, n); `--json` for the raw result."""
+
+from __future__ import annotations
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from replanner.errors import ReplannerError
+
+from .cli_common import ConfigOpt, JsonOpt, fail, print_json, resolve_config
+
+app = typer.Typer(help="Benchmarks: fixed seeds, printed figures (median, p95, n).", no_args_is_help=True)
+
+
+def _print_collision(result: dict) -> None:
+    t = Table(
+        title=f"collision checks: {result['robot']}, table + {result['scene']['octree_voxels']} voxels "
+        f"({result['valid_fraction']:.0%} of configurations valid)"
+    )
+    for col in ("query", "rate (median)", "latency median", "latency p95", "n"):
+        t.add_column(col)
+    s, b, d = result["boolean_single"], result["boolean_batched"], result["distance"]
+    t.add_row(
+        "is_valid, 1 per call",
+        f"{s['checks_per_s_median']:,.0f} /s",
+        f"{s['latency_us']['median']:.1f} µs",
+        f"{s['latency_us']['p95']:.1f} µs",
+        f"{s['runs']} × {s['n_per_run']}",
+    )
+    t.add_row(
+        f"is_valid_batch, {b['chunk']} per call",
+        f"{b['checks_per_s_median']:,.0f} /s",
+        "-",
+        "-",
+        f"{b['runs']} × {b['n_per_run']}",
+    )
+    t.add_row(
+        "clearance (distance)",
+        f"{d['queries_per_s_median']:,.0f} /s",
+        f"{d['latency_us']['median']:.0f} µs",
+        f"{d['latency_us']['p95']:.0f} µs",
+        str(d["latency_us"]["n"]),
+    )
+    Console().print(t)
+
+
+@app.command("collision")
+def bench_collision(
+    config: ConfigOpt = "panda",
+    seed: int = typer.Option(0, min=0, help="Seed of the scene and the configurations."),
+    runs: int = typer.Option(5, min=1, help="Measured runs (plus one warm-up)."),
+    n: int = typer.Option(5000, min=10, help="Configurations per run."),
+    voxels: int = typer.Option(50_000, min=0, help="Occupied voxels in the octree."),
+    as_json: JsonOpt = False,
+) -> None:
+    """Boolean and distance checks/s of the robot against a table and an octree of ~50,000 1 cm voxels."""
+    from replanner.bench import collision
+
+    try:
+        cfg = resolve_config(config)
+        result = collision.run(cfg, seed=seed, runs=runs, n=n, voxels=voxels)
+    except ReplannerError as err:
+        fail(err)
+    if as_json:
+        print_json(result)
+    else:
+        _print_collision(result)
+
+
+def _print_perception(r: dict) -> None:
+    t = Table(
+        title=f"perception: {r['sensor']['width']}x{r['sensor']['height']} organised cloud at "
+        f"{r['resolution_m']} m, {r['frames']} frames (+{r['warmup_frames']} warm-up)"
+    )
+    for col in ("stage", "points/voxels out (median)", "ms median", "ms p95"):
+        t.add_column(col)
+    counts = r["count_out_per_stage_median"]
+    t.add_row("input", str(counts.get("input", "")), "", "")
+    for stage, s in r["ms_per_stage"].items():
+        key = {"transform_crop": "crop", "voxel_grid": "voxels", "range": "range"}.get(stage, stage)
+        t.add_row(stage, str(counts.get(key, "")), f"{s['median']:.2f}", f"{s['p95']:.2f}")
+    f = r["ms_per_frame"]
+    t.add_row(
+        "[bold]whole frame", f"{r['occupied_voxels_median']} occupied", f"[bold]{f['median']:.1f}", f"{f['p95']:.1f}"
+    )
+    Console().print(t)
+    ref, c = r["reference_octomap_insert_ms"], r["clearing"]
+    Console().print(
+        f"octomap-python ray-cast insertion of the same cloud: {ref['median']:.0f} ms median (n={ref['n']})"
+    )
+    Console().print(
+        f"clearing: a removed box ({c['box_voxels_mapped']} voxels) was gone after "
+        f"{c['frames_to_clear_measured']} frames (bound {c['frames_to_clear_bound']})"
+    )
+
+
+@app.command("perception")
+def bench_perception(
+    config: ConfigOpt = "panda",
+    seed: int = typer.Option(0, min=0, help="Seed of the scene."),
+    frames: int = typer.Option(40, min=30, help="Timed frames (at least 30)."),
+    as_json: JsonOpt = False,
+) -> None:
+    """Whole perception pipeline on 640x480 clouds rendered by pybullet; octomap-python as the reference."""
+    from replanner.bench import perception
+
+    try:
+        cfg = resolve_config(config)
+        result = perception.run(cfg, seed=seed, frames=frames)
+    except (ReplannerError, ValueError) as err:
+        fail(err)
+    if as_json:
+        print_json(result)
+    else:
+        _print_perception(result)
+
+
+def _print_planning(r: dict) -> None:
+    t = Table(title=f"planning: {r['robot']}, {r['planner']}, deadline {r['deadline_s']} s, seed {r['seed']}")
+    for col in (
+        "family",
+        "n",
+        "success",
+        "plan ms med / p95",
+        "timing ms med / p95",
+        "duration s med",
+        "naive s med",
+        "naive/timed",
+        "worst v / a / j",
+        "tube max",
+        "collisions",
+    ):
+        t.add_column(col)
+    for name, d in [*r["families"].items(), ("overall", r["overall"])]:
+        w = d.get("worst", {})
+        t.add_row(
+            name,
+            str(d["problems"]),
+            f"{d['success_rate']:.0%}",
+            f"{d['plan_ms']['median']:.0f} / {d['plan_ms']['p95']:.0f}",
+            f"{d['timing_ms']['median']:.1f} / {d['timing_ms']['p95']:.1f}",
+            f"{d['duration_s']['median']:.2f}",
+            f"{d['naive_duration_s']['median']:.2f}",
+            f"{d.get('naive_over_timed_total', 0):.3f}",
+            " / ".join(f"{w[k]:.3f}" for k in ("velocity_ratio", "acceleration_ratio", "jerk_ratio")) if w else "-",
+            f"{w['tube_deviation']:.3f}" if w else "-",
+            f"{d['colliding_samples']} of {d['samples']}" if "samples" in d else "-",
+        )
+    Console().print(t)
+
+
+@app.command("planning")
+def bench_planning(
+    config: ConfigOpt = "panda",
+    seed: int = typer.Option(0, min=0, help="Seed of the scenes, starts and goals (and OMPL)."),
+    per_family: int = typer.Option(25, min=1, help="Problems per scene family."),
+    deadline: float | None = typer.Option(None, min=0.01, help="Planning deadline [s]; default from the config."),
+    verify: bool = typer.Option(True, help="Check every trajectory at 1 kHz: limits, tube, pybullet collisions."),
+    as_json: JsonOpt = False,
+) -> None:
+    """Plan, simplify and time problems of four seeded scene families (table, shelf, bin, cage)."""
+    from replanner.bench import planning
+
+    try:
+        cfg = resolve_config(config)
+        result = planning.run(cfg, seed=seed, per_family=per_family, deadline=deadline, verify_all=verify)
+    except ReplannerError as err:
+        fail(err)
+    if as_json:
+        print_json(result)
+    else:
+        _print_planning(result)
+
+
+@app.command("monitor")
+def bench_monitor(
+    config: ConfigOpt = "panda",
+    seed: int = typer.Option(0, min=0, help="Seed of the clutter and the planning load."),
+    voxels: int = typer.Option(50_000, min=1000, help="Occupied voxels in the octree."),
+    as_json: JsonOpt = False,
+) -> None:
+    """Remaining-path check time against ~50k voxels, and the monitor's check rate idle vs while planning."""
+    from replanner.bench import monitor
+
+    try:
+        result = monitor.run(resolve_config(config), seed=seed, voxels=voxels)
+    except ReplannerError as err:
+        fail(err)
+    if as_json:
+        print_json(result)
+        return
+    t = Table(title=f"monitor: {result['robot']}, {result['octree_voxels']} voxels")
+    for col in ("figure", "value", "bar"):
+        t.add_column(col)
+    c, w = result["remaining_path_check_ms"], result["remaining_path_waypoints"]
+    t.add_row(
+        f"remaining-path check ({w['median']:.0f} waypoints), median / p95",
+        f"{c['median']:.2f} / {c['p95']:.2f} ms (n={c['n']})",
+        "median <= 5 ms",
+    )
+    f = result["full_check_ms"]
+    t.add_row("same path, everything checked (after a scene edit)", f"{f['median']:.2f} / {f['p95']:.2f} ms", "-")
+    t.add_row("check rate idle", f"{result['check_rate_idle_hz']:.0f} Hz (cap {result['check_rate_cap_hz']:.0f})", "-")
+    t.add_row(
+        "check rate while planning",
+        f"{result['check_rate_while_planning_hz']:.0f} Hz ({result['plans_during_window']} plans)",
+        ">= 100 Hz",
+    )
+    Console().print(t)
+
+
+@app.command("reaction")
+def bench_reaction(
+    config: ConfigOpt = "panda",
+    seed: int = typer.Option(0, min=0, help="Seed of the drops (place, size, time)."),
+    runs: int = typer.Option(20, min=1, help="Boxes dropped (one per run)."),
+    as_json: JsonOpt = False,
+) -> None:
+    """A box dropped into the arm's path: time to the map, to PENDING, to the spliced trajectory."""
+    from replanner.bench import reaction
+
+    try:
+        result = reaction.run(resolve_config(config), seed=seed, runs=runs)
+    except ReplannerError as err:
+        fail(err)
+    if as_json:
+        print_json(result)
+        return
+    t = Table(title=f"reaction: {runs} boxes dropped {result['time_to_contact_s']} s ahead of the arm")
+    for col in ("interval", "median ms", "p95 ms", "n"):
+        t.add_column(col)
+    for key, label in [
+        ("drop_to_map_ms", "drop -> in the map"),
+        ("map_to_pending_ms", "map -> PENDING"),
+        ("pending_to_spliced_ms", "PENDING -> spliced (decided)"),
+        ("pending_to_landed_ms", "PENDING -> new trajectory takes over"),
+    ]:
+        v = result[key]
+        t.add_row(
+            label,
+            f"{v['median']:.0f}" if v["median"] is not None else "-",
+            f"{v['p95']:.0f}" if v["p95"] is not None else "-",
+            str(v["n"]),
+        )
+    Console().print(t)
+    Console().print(
+        f"replanned without stopping: {result['replanned_without_stopping']} of {runs}; braked: "
+        f"{result['braked']}; goals reached: {result['succeeded']}; min clearance to the box "
+        f"(pybullet): {result['min_clearance_m'] * 1000:.1f} mm"
+    )
+
+
+@app.command("service")
+def bench_service(
+    config: ConfigOpt = "panda",
+    seed: int = typer.Option(0, min=0, help="Seed of the goals."),
+    goals: int = typer.Option(20, min=1, help="Goals sent (one after the other)."),
+    as_json: JsonOpt = False,
+) -> None:
+    """End to end over Zenoh: serve and robot --kinematic as processes; request -> result of simple goals."""
+    from replanner.bench import service
+
+    try:
+        result = service.run(config, resolve_config(config), seed=seed, goals=goals)
+    except ReplannerError as err:
+        fail(err)
+    if as_json:
+        print_json(result)
+        return
+    t = Table(title=f"service end to end: {result['robot']}, {result['transport']}")
+    for col in ("interval", "median", "p95", "n"):
+        t.add_column(col)
+    for key, label, unit in [
+        ("state_query_ms", "state query round trip", "ms"),
+        ("goal_accept_ms", "goal request -> accepted", "ms"),
+        ("goal_result_s", "goal request -> result", "s"),
+        ("trajectory_s", "of which the arm moves", "s"),
+        ("overhead_ms", "the rest (plan, time, transport, settle)", "ms"),
+    ]:
+        v = result[key]
+        t.add_row(label, f"{v['median']:.3f} {unit}", f"{v['p95']:.3f} {unit}", str(v["n"]))
+    Console().print(t)
