@@ -310,8 +310,11 @@ class SpeedSeparationConfig(Section):
     )
     range: float = Field(1.5, gt=0.0, le=5.0, description="Voxels farther than this never limit the speed [m].")
     point_spacing: float = Field(0.03, ge=0.005, le=0.2, description="Spacing of the arm's surface samples [m].")
-    resume_share: float = Field(
-        0.2, gt=0.0, le=1.0, description="A held arm resumes once this share of its speed is allowed near people."
+    resume_margin: float = Field(
+        0.1, ge=0.0, le=1.0, description="An arm at rest moves on only with this much more than S_p at rest [m]."
+    )
+    min_speed_share: float = Field(
+        0.05, gt=0.0, le=1.0, description="Allowed less than this share of its speed, the arm stops and holds instead."
     )
 
 

@@ -13,9 +13,10 @@ from typing import Literal
 
 from .config import ReplannerConfig
 from .control.controller import Controller
+from .control.latency import LatencyAccount
 from .monitor import Monitor, build_monitor
 from .perception import Perception
-from .planning import Planner, PlanWorker, ProcessWorker, ThreadWorker
+from .planning import InlineWorker, Planner, PlanWorker, ProcessWorker, ThreadWorker
 from .trajectory import Trajectory, TrajectoryGenerator
 from .world.collision import CollisionChecker
 from .world.geometry import Shape
@@ -61,7 +62,7 @@ def build_stack(
     seed: int | None = None,
     cameras: bool = True,
     execute: Callable[[Trajectory, float], None] | None = None,
-    plan_in: Literal["process", "thread"] | None = None,
+    plan_in: Literal["process", "thread", "inline"] | None = None,
     clock: Callable[[], float] = time.monotonic,
 ) -> Stack:
     """Build the parts `cfg` describes.
@@ -73,7 +74,9 @@ def build_stack(
         cameras: build perception for the configured sensors (False: static objects only).
         execute: execute(trajectory, start [clock s]) sends trajectories to the robot; given, the stack gets a
             monitor, a plan worker and a controller (not started).
-        plan_in: "process" (a child process, the second core) or "thread"; default: controller.planning_process.
+        plan_in: "process" (a child process, the second core), "thread", or "inline" (planned when submitted,
+            handed over by the worker's `deliver()`: simulation on a clock one drives); default: "process" if
+            controller.planning_process, else "thread".
         clock: the controller's clock [s], shared with the robot and the sensors.
     """
     robot = robot or RobotModel.from_config(cfg.robot)
@@ -88,10 +91,27 @@ def build_stack(
         stack.perception = Perception.from_config(cfg, robot, world)
     if execute is None:
         return stack
-    stack.monitor = build_monitor(checker, generator, cfg.controller, cfg.collision.allowed_contacts)
+    ssm = cfg.controller.speed_separation
+    sensors = cfg.perception.sensors if stack.perception is not None else []
+    frame_period = max((1.0 / s.rate_hz for s in sensors), default=0.0)
+    latency = LatencyAccount(
+        ssm.latency_window, ssm.latency_percentile, ssm.min_reaction_time, frame_period + cfg.controller.brake_latency
+    )
+    stack.monitor = build_monitor(
+        checker,
+        generator,
+        cfg.controller,
+        cfg.collision.allowed_contacts,
+        reaction_time=latency.reaction_time if sensors else None,
+        joint_state_age=latency.joint_state_age,
+    )
     plan_in = plan_in or ("process" if cfg.controller.planning_process else "thread")
-    stack.worker = ProcessWorker(cfg, seed) if plan_in == "process" else ThreadWorker(planner, generator)
-    sensors = [s.name for s in cfg.perception.sensors] if stack.perception is not None else []
+    if plan_in == "process":
+        stack.worker = ProcessWorker(cfg, seed)
+    elif plan_in == "inline":
+        stack.worker = InlineWorker(planner, generator, clock)
+    else:
+        stack.worker = ThreadWorker(planner, generator)
     stack.controller = Controller(
         robot,
         checker,
@@ -101,9 +121,10 @@ def build_stack(
         stack.worker,
         execute,
         cfg.controller,
-        sensors=sensors,
+        sensors=[s.name for s in sensors],
         clock=clock,
         default_deadline=cfg.planning.deadline,
+        latency=latency,
     )
     if stack.perception is not None:
         stack.perception.subscribe(stack.controller.on_map)

@@ -39,3 +39,26 @@ class Proc:
                 self.p.wait()
         self._f.close()
         return self.p.returncode
+
+
+class Load:
+    """`n` busy processes on the machine's cores for as long as the context lasts (at most `limit` s): a benchmark
+    or a demo measured as a busy machine would run it. `with Load(2): ...`"""
+
+    def __init__(self, n: int, limit: float = 7200.0):
+        self.n, self.limit = int(n), float(limit)
+        self.procs: list[subprocess.Popen] = []
+
+    def __enter__(self) -> Load:
+        spin = f"import time\nend = time.monotonic() + {self.limit}\nwhile time.monotonic() < end: pass"
+        self.procs = [subprocess.Popen([sys.executable, "-c", spin]) for _ in range(self.n)]
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for p in self.procs:
+            p.kill()
+        for p in self.procs:
+            p.wait()
+
+    def describe(self) -> dict:
+        return {"busy_processes": self.n, "each": "a Python loop spinning on one core", "cores": os.cpu_count()}

@@ -1,9 +1,9 @@
-"""Every edge of the controller's state machine, on the kinematic driver with clouds through perception."""
+"""Every edge of the controller's state machine, on a kinematic robot with clouds through perception, all on a
+simulated clock the test advances (SteppedSim): no test races the wall clock; the same run on any machine."""
 
 from __future__ import annotations
 
 import copy
-import time
 
 import numpy as np
 import pytest
@@ -13,7 +13,7 @@ from replanner.config import parse_config
 from replanner.control import Goal, GoalRejected, GoalStatus, State
 from replanner.errors import InvalidInputError, UnknownNameError
 from replanner.planning import PoseGoal
-from replanner.sim.kinematic import KinematicSim
+from replanner.sim.stepped import SteppedSim
 from replanner.trajectory import progress_along
 from replanner.world.geometry import Box
 from replanner.world.transforms import make_transform
@@ -33,7 +33,8 @@ def sim_config(**controller) -> dict:
     front = data["perception"]["sensors"][0]
     front.update(width=320, height=240)
     data["perception"]["sensors"] = [front]
-    data["controller"] = {**data.get("controller", {}), **controller}
+    # the replanning mechanism on its own: speed and separation would stop the arm near every box (tested apart)
+    data["controller"] = {"speed_separation": {"enabled": False}, **data.get("controller", {}), **controller}
     return data
 
 
@@ -41,40 +42,45 @@ def sim_config(**controller) -> dict:
 def make_sim(panda):
     sims = []
 
-    def make(**controller) -> KinematicSim:
+    def make(**controller) -> SteppedSim:
         cfg = parse_config(copy.deepcopy(sim_config(**controller)), base_dir=CONFIGS)
-        sim = KinematicSim(cfg, [TABLE], robot=panda, seed=3).start()
+        sim = SteppedSim(cfg, [TABLE], robot=panda, seed=3)
         sims.append(sim)
         return sim
 
     yield make
     for s in sims:
-        s.stop()
+        s.close()
 
 
-def go_to(sim: KinematicSim, q, goal_id: str, timeout: float = 15.0, **kw):
-    h = sim.controller.submit(Goal.joints(goal_id, q, **kw))
-    h.accepted(timeout)  # raises GoalRejected with the reason
-    res = h.wait(timeout)
-    assert res is not None, f"no result for {goal_id} in {timeout} s; transitions: {edges(sim)}"
-    return res
+def submit(sim: SteppedSim, goal: Goal):
+    """Hand a goal over; the controller decides on it at its next step."""
+    h = sim.controller.submit(goal)
+    sim.step()
+    return h
+
+
+def go_to(sim: SteppedSim, q, goal_id: str, within: float = 15.0, **kw):
+    h = submit(sim, Goal.joints(goal_id, q, **kw))
+    h.accepted(0.0)  # raises GoalRejected with the reason
+    return result(sim, h, within)
+
+
+def result(sim, handle, within: float):
+    sim.run_until(lambda: handle.result is not None, within, f"the result of {handle.id}")
+    return handle.result
 
 
 def edges(sim) -> list[tuple[str, str, str]]:
     return [(t.source, t.dest, t.trigger) for t in sim.controller.transitions]
 
 
-def wait_for(predicate, timeout: float, what: str):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return
-        time.sleep(0.005)
-    raise AssertionError(f"timed out waiting for {what}")
+def wait_state(sim, state: State, within: float = 5.0):
+    sim.run_until(lambda: sim.controller.state == state.value, within, state.value)
 
 
-def wait_state(sim, state: State, timeout: float = 5.0):
-    wait_for(lambda: sim.controller.state == state.value, timeout, state.value)
+def at_rest(sim) -> bool:
+    return np.abs(sim.state().velocity).max() < 1e-9
 
 
 def hand_at(sim, q) -> np.ndarray:
@@ -85,7 +91,7 @@ def test_plan_ok_reaches_the_goal(make_sim):
     sim = make_sim()
     res = go_to(sim, A, "a")
     assert res.status == GoalStatus.SUCCEEDED
-    assert np.abs(sim.driver.state().position - A).max() < 0.01
+    assert np.abs(sim.state().position - A).max() < 0.01
     assert edges(sim) == [
         ("WAITING", "PLANNING", "plan"),
         ("PLANNING", "MONITORING", "start_motion"),
@@ -108,8 +114,8 @@ def test_plan_fails_retries_and_gives_up(make_sim):
     assert go_to(sim, ARM_UP, "up").status == GoalStatus.SUCCEEDED
     for name, shape, pose in sleeve(sim.robot):  # a sleeve the arm cannot bend out of (the world knows it)
         sim.world.add(name, shape, pose)
-    h = sim.controller.submit(Goal.joints("out", ARM_FORWARD, deadline=0.4))
-    res = h.wait(10)
+    h = submit(sim, Goal.joints("out", ARM_FORWARD, deadline=0.4))
+    res = result(sim, h, 10)
     assert res.status == GoalStatus.FAILED and "planning failed" in res.reason, res
     attempts = int(res.reason.split("(")[1].split()[0])
     assert attempts >= 2  # retried with fresh trees until the deadline
@@ -119,7 +125,7 @@ def test_plan_fails_retries_and_gives_up(make_sim):
 def _drop_on_path(sim, after: float, size=0.14, where: float = 0.5):
     mid = A + where * (B - A)
     c = hand_at(sim, mid)
-    time.sleep(after)
+    sim.run_for(after)
     sim.add_obstacle("intruder", Box(size=(size, size, size)), make_transform(c))
     return c
 
@@ -127,11 +133,11 @@ def _drop_on_path(sim, after: float, size=0.14, where: float = 0.5):
 def test_block_then_replan_spliced_while_moving(make_sim):
     sim = make_sim()
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
+    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
-    t_start = time.monotonic()
+    t_start = sim.t
     _drop_on_path(sim, after=0.3, where=0.7)  # far enough ahead that a new path can land before it
-    res = h.wait(20)
+    res = result(sim, h, 20)
     assert res.status == GoalStatus.SUCCEEDED, (res, edges(sim))
     e = edges(sim)
     assert ("MONITORING", "MONITORING_WITH_PLANNING_PENDING", "blocked") in e
@@ -141,10 +147,10 @@ def test_block_then_replan_spliced_while_moving(make_sim):
 
 
 def _check_executed_motion(sim, t_start: float):
-    """What the driver actually ran, at 1 kHz: continuous, within limits, never backwards at a splice."""
+    """What the robot actually ran, at 1 kHz: continuous, within limits, never backwards at a splice."""
     dt = 1e-3
-    t = np.arange(t_start, time.monotonic(), dt)
-    q = np.array([sim.driver.timeline.state(tt)[0] for tt in t])
+    t = np.arange(t_start, sim.t, dt)
+    q = np.array([sim.timeline.state(tt)[0] for tt in t])
     lim = sim.robot.limits
     v = np.diff(q, axis=0) / dt
     a = np.diff(v, axis=0) / dt
@@ -153,7 +159,7 @@ def _check_executed_motion(sim, t_start: float):
     assert (np.abs(v) / (lim.velocity * scale)).max() <= 1.001
     assert (np.abs(a) / lim.acceleration).max() <= 1.001
     assert (np.abs(j) / lim.jerk).max() <= 1.001
-    segs = sim.driver.timeline.segments()
+    segs = sim.timeline.segments()
     for start, traj in segs[1:]:
         if start <= t_start or traj.duration == 0:
             continue
@@ -168,30 +174,30 @@ def test_block_then_path_clears_cancels_the_replan(make_sim):
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
     # a box on the goal: every replan fails (goal in collision) while it is there
     goal_hand = hand_at(sim, B)
-    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW * 0.6))
+    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW * 0.6))
     wait_state(sim, State.MONITORING)
     sim.add_obstacle("on_goal", PLATE, make_transform(goal_hand))
-    wait_state(sim, State.PENDING, timeout=3.0)
+    wait_state(sim, State.PENDING, within=3.0)
     sim.remove_obstacle("on_goal")
-    wait_state(sim, State.MONITORING, timeout=3.0)
+    wait_state(sim, State.MONITORING, within=3.0)
     why = [(t.dest, t.reason) for t in sim.controller.transitions]
     assert edges(sim)[-1] == ("MONITORING_WITH_PLANNING_PENDING", "MONITORING", "path_clear"), why
     assert any(e[1] == "replan_canceled" for e in sim.controller.events_log)
-    assert h.wait(20).status == GoalStatus.SUCCEEDED
+    assert result(sim, h, 20).status == GoalStatus.SUCCEEDED
 
 
 def test_safety_distance_brakes_and_aborts(make_sim):
     sim = make_sim(policy="abort", pending_timeout=10.0)
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
     goal_hand = hand_at(sim, B)
-    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
+    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     sim.add_obstacle("on_goal", PLATE, make_transform(goal_hand))
-    res = h.wait(20)
+    res = result(sim, h, 20)
     assert res.status == GoalStatus.FAILED, res
     assert edges(sim)[-1][1:] == ("WAITING", "brake_and_abort")
-    wait_for(lambda: np.abs(sim.driver.state().velocity).max() < 1e-9, 3.0, "the arm at rest")
-    q = sim.driver.state().position
+    sim.run_until(lambda: np.abs(sim.state().velocity).max() < 1e-9, 3.0, "the arm at rest")
+    q = sim.state().position
     assert sim.checker.is_valid(q)  # stopped before touching anything the map holds
     assert any(e[1] == "brake" for e in sim.controller.events_log)
 
@@ -200,14 +206,14 @@ def test_brake_then_wait_and_resume_after_the_obstacle_leaves(make_sim):
     sim = make_sim(policy="wait_and_resume", pending_timeout=10.0, hold_timeout=20.0, hold_replan_interval=30.0)
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
     goal_hand = hand_at(sim, B)
-    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
+    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     sim.add_obstacle("on_goal", PLATE, make_transform(goal_hand))
-    wait_state(sim, State.HOLDING, timeout=10.0)
-    time.sleep(0.5)
+    wait_state(sim, State.HOLDING, within=10.0)
+    sim.run_for(0.5)
     assert sim.controller.state == State.HOLDING.value  # still blocked: still holding
     sim.remove_obstacle("on_goal")
-    res = h.wait(20)
+    res = result(sim, h, 20)
     assert res.status == GoalStatus.SUCCEEDED, (res, edges(sim))
     assert ("HOLDING", "MONITORING", "resume") in edges(sim)
 
@@ -215,26 +221,26 @@ def test_brake_then_wait_and_resume_after_the_obstacle_leaves(make_sim):
 def test_stop_and_wait_brakes_at_once_then_plans_from_rest(make_sim):
     sim = make_sim(reaction="stop_and_wait", hold_timeout=20.0, hold_replan_interval=0.5)
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
+    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     _drop_on_path(sim, after=0.3, where=0.7)  # the box the replan policy goes around
-    wait_state(sim, State.HOLDING, timeout=5.0)
+    wait_state(sim, State.HOLDING, within=5.0)
     e = edges(sim)
     assert ("MONITORING", "HOLDING", "brake_and_hold") in e and not any("PENDING" in t[1] for t in e), e
-    wait_for(lambda: np.abs(sim.driver.state().velocity).max() < 1e-9, 3.0, "the arm at rest")
-    res = h.wait(20)
+    sim.run_until(lambda: np.abs(sim.state().velocity).max() < 1e-9, 3.0, "the arm at rest")
+    res = result(sim, h, 20)
     assert res.status == GoalStatus.SUCCEEDED, (res, e)
     assert ("HOLDING", "MONITORING", "start_motion") in edges(sim)  # a new path from rest, around the box
-    assert np.linalg.norm(hand_at(sim, sim.driver.state().position) - hand_at(sim, B)) < 0.01
+    assert np.linalg.norm(hand_at(sim, sim.state().position) - hand_at(sim, B)) < 0.01
 
 
 def test_reaction_none_never_looks_again(make_sim):
     sim = make_sim(reaction="none")
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
+    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
     _drop_on_path(sim, after=0.3, where=0.7)
-    res = h.wait(20)
+    res = result(sim, h, 20)
     assert res.status == GoalStatus.SUCCEEDED  # straight through the box: what the demo's baseline shows
     assert edges(sim)[-1] == ("MONITORING", "WAITING", "succeeded") and len(edges(sim)) == 6
 
@@ -242,14 +248,14 @@ def test_reaction_none_never_looks_again(make_sim):
 def test_cancel_brakes_and_reports(make_sim):
     sim = make_sim()
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
+    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
-    time.sleep(0.5)
+    sim.run_for(0.5)
     sim.controller.cancel("across")
-    res = h.wait(5)
+    res = result(sim, h, 5)
     assert res.status == GoalStatus.CANCELED
-    wait_for(lambda: np.abs(sim.driver.state().velocity).max() < 1e-9, 3.0, "the arm at rest")
-    assert np.abs(sim.driver.state().position - B).max() > 0.3  # stopped on the way, not at the goal
+    sim.run_until(lambda: np.abs(sim.state().velocity).max() < 1e-9, 3.0, "the arm at rest")
+    assert np.abs(sim.state().position - B).max() > 0.3  # stopped on the way, not at the goal
     with pytest.raises(UnknownNameError, match="active goal"):
         sim.controller.cancel("across")
 
@@ -257,37 +263,37 @@ def test_cancel_brakes_and_reports(make_sim):
 def test_new_goal_preempts_the_current_one(make_sim):
     sim = make_sim()
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    first = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
+    first = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
-    time.sleep(0.4)
-    second = sim.controller.submit(Goal.joints("home", sim.robot.home))
-    assert first.wait(5).status == GoalStatus.PREEMPTED
-    assert second.wait(15).status == GoalStatus.SUCCEEDED
-    assert np.abs(sim.driver.state().position - sim.robot.home).max() < 0.01
+    sim.run_for(0.4)
+    second = submit(sim, Goal.joints("home", sim.robot.home))
+    assert result(sim, first, 5).status == GoalStatus.PREEMPTED
+    assert result(sim, second, 15).status == GoalStatus.SUCCEEDED
+    assert np.abs(sim.state().position - sim.robot.home).max() < 0.01
 
 
 def test_joint_state_silence_brakes_and_fails(make_sim):
     sim = make_sim()
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW))
+    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
-    sim.driver.silent = True
-    res = h.wait(5)
+    sim.joint_states_on = False
+    res = result(sim, h, 5)
     assert res.status == GoalStatus.FAILED and "joint states silent" in res.reason
     assert edges(sim)[-1][2] == "fault"
-    sim.driver.silent = False
+    sim.joint_states_on = True
 
 
 def test_camera_silence_brakes_and_fails(make_sim):
     sim = make_sim(sensor_timeout=0.5)
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = sim.controller.submit(Goal.joints("across", B, velocity_scale=SLOW * 0.5))
+    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW * 0.5))
     wait_state(sim, State.MONITORING)
     sim.cameras_on = False
-    res = h.wait(5)
+    res = result(sim, h, 5)
     assert res.status == GoalStatus.FAILED and "camera 'front' silent" in res.reason
     with pytest.raises(GoalRejected, match="camera 'front' is silent"):
-        sim.controller.submit(Goal.joints("again", A)).accepted(timeout=10.0)
+        submit(sim, Goal.joints("again", A)).accepted(0.0)
 
 
 @pytest.mark.parametrize(
@@ -303,11 +309,11 @@ def test_camera_silence_brakes_and_fails(make_sim):
 )
 def test_bad_goals_are_rejected_and_change_nothing(make_sim, goal, match):
     sim = make_sim()
-    before = (sim.controller.state, len(sim.controller.transitions), sim.driver.state().position.copy())
+    before = (sim.controller.state, len(sim.controller.transitions), sim.state().position.copy())
     with pytest.raises(GoalRejected, match=match):
-        sim.controller.submit(goal).accepted(timeout=10.0)
+        submit(sim, goal).accepted(0.0)
     assert (sim.controller.state, len(sim.controller.transitions)) == before[:2]
-    np.testing.assert_allclose(sim.driver.state().position, before[2])
+    np.testing.assert_allclose(sim.state().position, before[2])
 
 
 @pytest.mark.parametrize(

@@ -15,7 +15,6 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from enum import Enum
 
 import numpy as np
 from transitions import Machine
@@ -31,39 +30,12 @@ from ..world.robot import RobotModel
 from .goals import Goal, GoalHandle, GoalResult, GoalStatus
 from .history import History, TransitionRecord
 from .inbox import Inbox, Input
+from .latency import LatencyAccount
 from .liveness import Liveness
 from .moves import Moves
+from .states import State, edges
 
 log = logging.getLogger(__name__)
-
-
-class State(str, Enum):
-    WAITING = "WAITING"
-    PLANNING = "PLANNING"
-    MONITORING = "MONITORING"
-    PENDING = "MONITORING_WITH_PLANNING_PENDING"
-    HOLDING = "HOLDING"
-
-
-def _table() -> list[dict]:
-    W, P, M, PD, H = (s.value for s in State)
-    busy = [P, M, PD, H]
-    return [
-        {"trigger": "plan", "source": [W, P, M, PD, H], "dest": P},
-        {"trigger": "plan_failed", "source": P, "dest": W},
-        {"trigger": "start_motion", "source": [P, H], "dest": M},
-        {"trigger": "blocked", "source": M, "dest": PD},
-        {"trigger": "path_clear", "source": PD, "dest": M},
-        {"trigger": "spliced", "source": PD, "dest": M},
-        {"trigger": "brake_and_hold", "source": [M, PD], "dest": H},
-        {"trigger": "brake_and_abort", "source": [M, PD], "dest": W},
-        {"trigger": "resume", "source": H, "dest": M},
-        {"trigger": "give_up", "source": H, "dest": W},
-        {"trigger": "succeeded", "source": [M, PD], "dest": W},
-        {"trigger": "failed", "source": busy, "dest": W},
-        {"trigger": "canceled", "source": busy, "dest": W},
-        {"trigger": "fault", "source": busy, "dest": W},
-    ]
 
 
 class Controller:
@@ -77,6 +49,7 @@ class Controller:
         cfg: the controller config section.
         sensors: names of the cameras whose silence is a fault; empty: static objects only.
         clock: time source [s] shared with the robot driver and the sensors.
+        latency: the account of the reaction chain (the speed-and-separation check reads its T_r).
     """
 
     def __init__(
@@ -93,6 +66,7 @@ class Controller:
         sensors: list[str] | tuple[str, ...] = (),
         clock: Callable[[], float] = time.monotonic,
         default_deadline: float = 1.0,
+        latency: LatencyAccount | None = None,
     ):
         self.robot, self.checker, self.planner, self.gen = robot, checker, planner, generator
         self.monitor, self.worker, self.cfg, self.clock = monitor, worker, cfg, clock
@@ -109,7 +83,7 @@ class Controller:
             send_event=True,
             auto_transitions=False,
             after_state_change="_record",
-            transitions=_table(),
+            transitions=edges(),
         )
         self.history = History()
         self.transitions, self.events_log = self.history.transitions, self.history.events
@@ -118,6 +92,7 @@ class Controller:
         self._job: PlanJob | None = None
         self._handle: GoalHandle | None = None
         self.liveness = Liveness(self.sensors, cfg.joint_state_timeout, cfg.sensor_timeout)
+        self.latency = latency or LatencyAccount()
         self._dirty = False
         self._last_check = -math.inf
         self._check_gap = 0.0  # recent gap between checks, decaying [s]
@@ -125,6 +100,7 @@ class Controller:
         self._clear_count = 0
         self._pending_since = self._hold_since = self._hold_planned = 0.0
         self._settle_until = math.inf
+        self._resumable = True  # held on its own path: it may resume it once clear
         self.last_clearance: float | None = None
 
     # ------------------------------------------------------------------ observers and history
@@ -149,13 +125,17 @@ class Controller:
     # ------------------------------------------------------------------ inputs (any thread, never block)
     def on_joint_state(self, js) -> None:
         """A measured joint state: it counts as heard now (a long step must not make a live robot look silent)."""
-        self.liveness.joint_state(self.clock(), js)
+        now = self.clock()
+        self.liveness.joint_state(now, js)
+        self.latency.joint_state(now, js.stamp)
         self.inbox.put(Input.JOINT_STATE, js)
 
     def on_map(self, sensor: str | None = None, stamp: float | None = None) -> None:
         """A new map was integrated (from `sensor`'s frame): the sensor is alive and the path must be re-checked."""
+        now = self.clock()
         if sensor is not None:
-            self.liveness.sensor(self.clock(), sensor)
+            self.liveness.sensor(now, sensor)
+        self.latency.map_integrated(now, stamp)
         self.inbox.put(Input.MAP, stamp)
 
     def submit(self, goal: Goal) -> GoalHandle:
@@ -183,9 +163,11 @@ class Controller:
         return None if js is None else js[1].position
 
     # ------------------------------------------------------------------ running
-    def start(self) -> Controller:
+    def start(self, thread: bool = True) -> Controller:
+        """Begin; thread=False: nothing runs until someone calls `step` (a simulation driving its own clock)."""
         self.worker.start(lambda answer: self.inbox.put(Input.ANSWER, answer))
-        self.inbox.start()
+        if thread:
+            self.inbox.start()
         return self
 
     def stop(self) -> None:
@@ -203,7 +185,12 @@ class Controller:
             gap = now - self._last_check if self._last_check > -math.inf else 0.0
             self._check_gap = min(max(gap, 0.9 * self._check_gap), 0.25)  # a stall is the watchdogs' case
             self._last_check = now
+            sent = self.moves.sent
             self._check(now)
+            done = self.clock()
+            self.latency.checked(done, gap)
+            if self.moves.sent != sent:
+                self.latency.command_sent(done, now)
         if self.state != State.WAITING.value and (why := self.liveness.silent(self.clock())) is not None:
             self._safe_stop(why)
 
@@ -287,19 +274,9 @@ class Controller:
             start_q = base[1].state_at(land - base[0])[0]
         else:
             start_q = self.measured() if self.liveness.last_js else self.robot.home
-        self._job = PlanJob(
-            next(self._job_ids),
-            purpose,
-            start_q,
-            self._handle.q_goal,
-            deadline,
-            land,
-            base,
-            goal.planner,
-            goal.velocity_scale,
-            goal.acceleration_scale,
-            requested=now,
-        )
+        scales = (goal.velocity_scale, goal.acceleration_scale)
+        q_goal, job_id = self._handle.q_goal, next(self._job_ids)
+        self._job = PlanJob(job_id, purpose, start_q, q_goal, deadline, land, base, goal.planner, *scales, now)
         self.log_event("plan_requested", purpose=purpose.value, job=self._job.id)
         self.worker.submit(self._job, self.checker.world.snapshot())
 
@@ -317,6 +294,11 @@ class Controller:
         if answer.error is None and job.land is not None and now > job.land - 0.002:
             late = TrajectoryError(f"the plan arrived {now - job.land:.3f} s after its landing time")
             answer = PlanAnswer(job, error=late)
+        elif answer.error is None and job.base is not None:
+            running = self.moves.timeline.active(job.land)
+            if running is None or running[1] is not job.base[1] or running[0] != job.base[0]:
+                changed = TrajectoryError("the motion changed while the replan was computed (a speed change)")
+                answer = PlanAnswer(job, error=changed)
         if answer.error is not None:
             self._plan_error(job, answer.error)
             return
@@ -356,7 +338,18 @@ class Controller:
                 self._retry_at = now + 0.1
             else:
                 self._launch(JobPurpose.REPLAN, self.cfg.replan_deadline)
+        elif job.purpose is JobPurpose.HOLD and state == State.HOLDING.value and isinstance(err, StartInvalid):
+            self._retreat(str(err))
         # a failed hold replan: keep holding, the next attempt comes after hold_replan_interval
+
+    def _retreat(self, why: str) -> None:
+        """Stopped where no plan can start: back off along its own curve (see Moves.escape), never stuck."""
+        arc = self.moves.escape()
+        if arc is None:
+            self.log_event("stuck", why=why)
+        else:
+            self.log_event("retreat", arc=arc, why=why)
+            self._resumable = False  # off its path now: only a new plan takes it on
 
     # ------------------------------------------------------------------ stopping
     def _safety_brake(self, reason: str) -> None:
@@ -368,6 +361,7 @@ class Controller:
         else:
             self._hold_since = self._hold_planned = self.clock()
             self._clear_count = 0
+            self._resumable = True
             self.brake_and_hold(reason=reason)
 
     def _safe_stop(self, reason: str) -> None:
@@ -394,26 +388,39 @@ class Controller:
         view = self.monitor.view(timeline, now, q, to_curve_end=holding, check_gap=self._check_gap)
         if view is None:
             return
+        if holding:
+            self._check_holding(now, view)
+            return
+        if self._reached(now):
+            return
+        speed = self.monitor.check_speed(view)
+        if speed.blocking is not None:  # a protective stop: too close even at rest
+            self.last_clearance = speed.blocking.clearance
+            self._safety_brake(speed.blocking.reason)
+            return
+        if speed.speed_factor < self.cfg.speed_separation.min_speed_share:
+            self._safety_brake(f"speed and separation allow {speed.speed_factor:.0%} of the speed: stop and hold")
+            return
         if state == State.MONITORING.value:
-            if self._reached(now):
-                return
             blocking = self.monitor.check_path(view).blocking
             if blocking is not None and self.cfg.reaction == Reaction.STOP_AND_WAIT:
                 self._safety_brake(f"{blocking.reason}: stop, wait, then plan from rest")
             elif blocking is not None:
                 self._pending_since, self._clear_count, self._retry_at = now, 0, None
                 self.log_event("blocked", check=blocking.check)
-                self.moves.slow_down(self.cfg.pending_speed_factor)
+                self._set_speed(min(speed.speed_factor, self.cfg.pending_speed_factor))
                 self._launch(JobPurpose.REPLAN, self.cfg.replan_deadline)
                 self.blocked(reason=blocking.reason)
+            else:
+                self._set_speed(speed.speed_factor)
         elif state == State.PENDING.value:
-            self._check_pending(now, view)
-        elif holding:
-            self._check_holding(now, view)
+            self._check_pending(now, view, speed.speed_factor)
 
-    def _check_pending(self, now: float, view) -> None:
-        if self._reached(now):
-            return
+    def _set_speed(self, factor: float) -> None:
+        if (was := self.moves.retime(factor)) is not None:
+            self.log_event("speed", factor=round(factor, 3), was=round(was, 3))
+
+    def _check_pending(self, now: float, view, speed_factor: float) -> None:
         clear = self.monitor.check_path(view).clear
         stop = self.monitor.check_close(view, path_clear=clear).blocking
         if stop is not None:
@@ -429,15 +436,18 @@ class Controller:
             if self._clear_count >= self.cfg.clear_checks:
                 self._cancel_job()
                 self.log_event("replan_canceled")
+                self._set_speed(speed_factor)
                 self.path_clear(reason=f"the path was clear for {self._clear_count} checks")
+            else:
+                self._set_speed(min(speed_factor, self.cfg.pending_speed_factor))
 
     def _check_holding(self, now: float, view) -> None:
         moving = self.moves.timeline.moving(now)
         clear = self.monitor.check_path(view).clear
         self._clear_count = self._clear_count + 1 if clear else 0
-        if self._clear_count >= self.cfg.clear_checks and not moving:
+        if self._resumable and self._clear_count >= self.cfg.clear_checks and not moving:
             # everything that can block, nothing remembered: a resume must not re-enter a blocked path
-            final = self.monitor.check_path(view, fresh=True).blocking
+            final = self.monitor.check_path(view, fresh=True).blocking or self.monitor.check_speed(view).blocking
             if final is None:
                 self.moves.resume()
                 self.resume(reason=f"the path was clear for {self._clear_count} checks")
@@ -482,4 +492,6 @@ class Controller:
             "perception": list(self.sensors) or "none: static objects only",
             "checks": self.monitor.stats.checks,
             "clearance": self.last_clearance,
+            "speed_factor": self.moves.speed_factor(),
+            "latency": self.latency.report(now),
         }

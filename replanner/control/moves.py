@@ -5,6 +5,8 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 
+import numpy as np
+
 from ..trajectory import Trajectory, TrajectoryError, TrajectoryGenerator
 from .timeline import Timeline
 
@@ -35,11 +37,21 @@ class Moves:
         self.timeline = Timeline(q0)
         self.gen, self._execute, self.clock, self.latency = generator, execute, clock, latency
         self.log_event = log_event
+        self.sent = 0  # trajectories sent so far (the latency account times decision -> command)
 
     def send(self, traj: Trajectory, start: float) -> None:
         """Run `traj` from `start` [clock s] on, replacing what would run from then."""
         self.timeline.add(traj, start)
         self._execute(traj, start)
+        self.sent += 1
+
+    def speed_factor(self) -> float | None:
+        """The share of its nominal speed the running motion is timed at, or None at rest."""
+        run = self._running()
+        if run is None:
+            return None
+        traj = run[1]
+        return float((traj.limits.velocity / traj.nominal.velocity).min())
 
     def _running(self) -> tuple[float, Trajectory, float] | None:
         """(start, trajectory, time into it when a change decided now starts), or None at rest."""
@@ -73,6 +85,39 @@ class Moves:
             log.warning("cannot slow down: %s", err)
             return
         self.send(slow, start + t)
+
+    def retime(self, factor: float) -> float | None:
+        """Re-time the motion to `factor` of its nominal speed: down at once, up in 20 % steps (no back and forth
+        for every small change). Returns the factor it had if it changed, else None."""
+        current = self.speed_factor()
+        if current is None or not (factor < current - 0.02 or (current < 0.999 and factor > 1.2 * current + 0.02)):
+            return None
+        self.slow_down(min(factor, 1.0))
+        return current
+
+    def escape(self) -> float | None:
+        """From rest where no plan can start: move a little along its own curve, back the way it came or on, to the
+        nearest configuration clear of everything. The configurations still touching get ever farther from what
+        they touch (out, never in); the rest are checked as any path. Returns the arc [rad] (negative: on), or None."""
+        seg = self.timeline.active(self.clock())
+        checker = self.gen.checker
+        if seg is None or checker is None or self.timeline.moving(self.clock()):
+            return None
+        curve, s_now = seg[1].curve, seg[1].s_at(seg[1].duration)
+        for arc in (0.05, 0.1, 0.2, 0.35, 0.6):  # [rad]: the shortest move that leaves the collision behind
+            for s_to in (s_now - arc, s_now + arc):
+                if not 0.0 <= s_to <= curve.length:
+                    continue
+                pts = curve.eval(np.linspace(s_now, s_to, 16))
+                free = checker.is_valid_batch(pts)
+                first = int(np.argmax(free)) if free.any() else None
+                if first is None or not checker.path_valid(pts[first:]):
+                    continue
+                gaps = [checker.clearance(q, max_distance=0.1).distance for q in pts[: first + 1]]
+                if np.all(np.diff(gaps) >= -1e-6):
+                    self.send(self.gen.time(pts), self.clock() + self.latency)
+                    return arc if s_to < s_now else -arc
+        return None
 
     def resume(self) -> None:
         """From a brake's stop on to the end of its curve, at the nominal limits."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,6 +27,7 @@ from .checks import (
     StopRegionCheck,
     Verdict,
 )
+from .ssm import SpeedSeparationCheck
 
 GRID_STEP = 0.02  # [rad of joint-space arc] between the remaining path's points
 
@@ -52,6 +54,11 @@ class Report:
     def blocking(self) -> Verdict | None:
         return next((v for v in self.verdicts if not v.clear), None)
 
+    @property
+    def speed_factor(self) -> float:
+        """The lowest share of its nominal speed any verdict allows (1: no limit)."""
+        return min((v.speed_factor for v in self.verdicts if v.speed_factor is not None), default=1.0)
+
 
 class Monitor:
     """Runs `path_checks` (every moving state) and `close_checks` (replan pending) over the remaining path.
@@ -61,9 +68,10 @@ class Monitor:
         close_checks: e.g. [SafetyDistanceCheck, StopRegionCheck]: must the arm stop now?
     """
 
-    def __init__(self, path_checks: list[Check], close_checks: list[Check] = ()):
+    def __init__(self, path_checks: list[Check], close_checks: list[Check] = (), speed_checks: list[Check] = ()):
         self.path_checks = list(path_checks)
         self.close_checks = list(close_checks)
+        self.speed_checks = list(speed_checks)
         self.stats = MonitorStats()
         self._grid_cache: dict[tuple, tuple[np.ndarray, np.ndarray, Trajectory]] = {}
 
@@ -126,6 +134,10 @@ class Monitor:
         checks = [c for c in self.close_checks if not (path_clear and c.only_when_blocked)]
         return self._run(checks, view, False)
 
+    def check_speed(self, view: MotionView) -> Report:
+        """How fast may the arm go now? Every speed check's verdict (a `speed_factor` each), in order."""
+        return Report(tuple(check(view, False) for check in self.speed_checks))
+
     @staticmethod
     def _run(checks: list[Check], view: MotionView, fresh: bool) -> Report:
         out = []
@@ -138,9 +150,15 @@ class Monitor:
 
 
 def build_monitor(
-    checker: CollisionChecker, generator: TrajectoryGenerator, cfg: ControllerConfig, allowed_contacts=()
+    checker: CollisionChecker,
+    generator: TrajectoryGenerator,
+    cfg: ControllerConfig,
+    allowed_contacts=(),
+    reaction_time: Callable[[float], float] | None = None,
+    joint_state_age: Callable[[float], float] | None = None,
 ) -> Monitor:
-    """The default checks: map and scene on the path; safety distance and stop region while a replan is pending.
+    """The default checks: map and scene on the path; safety distance and stop region while a replan is pending;
+    speed and separation in every moving state when `reaction_time` (T_r at a time [s]) is given.
 
     The safety distance is kept from what the cameras see with a second checker whose robot is inflated by it.
     """
@@ -154,10 +172,15 @@ def build_monitor(
         check_limits=False,
     )
     safety.is_valid(checker.robot.home)  # build lazily made geometry now: the first pending check must not stall
+    speed = []
+    if reaction_time is not None and cfg.speed_separation.enabled:
+        age = joint_state_age or (lambda now: 0.0)
+        speed.append(SpeedSeparationCheck(checker, generator, cfg.speed_separation, reaction_time, age))
     return Monitor(
         [MapPathCheck(checker), ScenePathCheck(checker)],
         [
             SafetyDistanceCheck(checker, safety, cfg.safety_distance),
             StopRegionCheck(checker, generator, 2.0 / cfg.check_rate_hz, cfg.brake_latency),
         ],
+        speed,
     )

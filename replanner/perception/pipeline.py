@@ -109,6 +109,8 @@ class Perception:
         # inferred voxels stay two voxels clear of known surfaces too: next to one, no camera could clear them
         static = None if sf.static_objects_padding is None else sf.static_objects_padding + 2 * cfg.resolution
         self._shadow_filter = SelfFilter(robot, sf.padding, static) if sf.enabled else None
+        # what lies inside the arm itself is no obstacle: the space is the arm's (cameras cannot see behind it)
+        self._inside_arm = SelfFilter(robot, 0.5 * cfg.resolution, None) if sf.enabled else None
         self._broadphase_cell = broadphase_cell
         self._filtered_version = -1
         self._subscribers: list[Callable[[str, float], None]] = []
@@ -297,6 +299,11 @@ class Perception:
             known = ~self.self_filter.keep_mask(self.grid.centers(self.map.active), q, snapshot)
             if known.any():
                 self.map.forget(self.map.active[known])
+        if self._inside_arm is not None and q is not None and len(self.map.active):
+            inside = ~self._inside_arm.keep_mask(self.grid.centers(self.map.active), q, then)
+            if inside.any():
+                self.map.forget(self.map.active[inside])
+                rep.counts["inside_arm"] = int(inside.sum())
         rep.decayed = self.map.decay(stamp)
         rep.hits, rep.misses = len(hits), len(misses)
         lap("occupancy")

@@ -15,13 +15,14 @@ from .planner import (
     UnknownPlanner,
     planner_class,
 )
-from .worker import JobPurpose, PlanAnswer, PlanJob, PlanWorker, ProcessWorker, ThreadWorker
+from .worker import InlineWorker, JobPurpose, PlanAnswer, PlanJob, PlanWorker, ProcessWorker, ThreadWorker
 
 __all__ = [
     "PLANNERS",
     "GoalInvalid",
     "IKError",
     "IKResult",
+    "InlineWorker",
     "JobPurpose",
     "JointGoal",
     "NoSolution",

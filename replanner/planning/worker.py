@@ -179,6 +179,49 @@ class ThreadWorker(PlanWorker):
         return plan_and_time(self.planner, self.gen, job, job.cancel)
 
 
+class InlineWorker(PlanWorker):
+    """Plans when a job is submitted, in the caller's thread; the answer is handed over by `deliver()` once `delay`
+    [s] of `clock` has passed. Whoever drives that clock calls `deliver()`: a simulation that runs the same on any
+    machine, with planning taking exactly `delay` of simulated time."""
+
+    def __init__(
+        self, planner: Planner, generator: TrajectoryGenerator, clock: Callable[[], float], delay: float = 0.0
+    ):
+        super().__init__()
+        self.planner, self.gen, self.clock, self.delay = planner, generator, clock, float(delay)
+        self._due: list[tuple[float, PlanAnswer]] = []
+
+    def start(self, on_answer: Callable[[PlanAnswer], None]) -> PlanWorker:
+        self._on_answer = on_answer
+        return self
+
+    def submit(self, job: PlanJob, snapshot: WorldSnapshot) -> None:
+        try:
+            traj, res = self.solve(job, snapshot)
+            answer = PlanAnswer(job, traj, res)
+        except ReplannerError as err:
+            answer = PlanAnswer(job, error=err)
+        self._due.append((self.clock() + self.delay, answer))
+
+    def deliver(self) -> None:
+        """Hand over every answer whose time has come."""
+        now = self.clock()
+        ready = [a for t, a in self._due if t <= now]
+        self._due = [(t, a) for t, a in self._due if t > now]
+        for answer in ready:
+            if not answer.job.cancel.is_set() and self._on_answer is not None:
+                self._on_answer(answer)
+
+    def cancel(self, job: PlanJob) -> None:
+        job.cancel.set()
+
+    def close(self) -> None:
+        self._due = []
+
+    def solve(self, job: PlanJob, snapshot: WorldSnapshot) -> tuple[Trajectory, PlanResult]:
+        return plan_and_time(self.planner, self.gen, job, job.cancel)
+
+
 @dataclass
 class _Request:
     """One job for the child; the world travels only when it changed since the last request."""

@@ -1,0 +1,132 @@
+"""Speed and separation monitoring: the formula, the check against a known scene, and the arm slowing down when the
+measured latency grows (on the stepped simulation: simulated time, the same run on any machine)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from replanner.bench.scenes import table
+from replanner.control import Goal, GoalStatus
+from replanner.monitor import SeparationTerms, SpeedSeparationCheck, protective_separation, safe_speed_scale
+from replanner.monitor.checks import MotionView
+from replanner.monitor.ssm import intrusion_distance
+from replanner.sim.stepped import SteppedSim
+from replanner.stack import build_stack
+from replanner.world.geometry import Box
+from replanner.world.occupancy import OccupancyMap
+from replanner.world.transforms import make_transform
+
+A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
+B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
+TERMS = SeparationTerms(v_h=1.6, T_r=0.2, T_s=0.3, v_r=0.5, S_s=0.1, C=0.0, Z_d=0.01, Z_r=0.005, tau=0.004)
+
+
+def test_protective_separation_is_iso_ts_15066s():
+    # v_h (T_r + T_s) + v_r T_r + S_s + C + Z_d + Z_r
+    assert protective_separation(1.6, 0.2, 0.3, 0.5, 0.1, 0.02, 0.01, 0.005) == pytest.approx(
+        0.8 + 0.1 + 0.1 + 0.02 + 0.01 + 0.005
+    )
+    assert TERMS.S_p == pytest.approx(1.6 * 0.5 + 0.5 * 0.2 + 0.1 + 0.015)
+    assert TERMS.at_scale(1.0) == pytest.approx(TERMS.S_p)  # the current speed is scale 1
+    assert TERMS.at_scale(0.0) == pytest.approx(1.6 * (0.2 + 0.004) + 0.015)  # at rest: reaction and jerk ramp
+
+
+def test_intrusion_distance_after_iso_13855():
+    assert intrusion_distance(0.01) == 0.0  # 8 (10 - 14) mm < 0
+    assert intrusion_distance(0.04) == pytest.approx(8 * (40 - 14) * 1e-3)
+
+
+@pytest.mark.parametrize("S", [0.2, 0.33, 0.5, 0.7, 0.93, 1.2, 3.0])
+def test_the_speed_scale_meets_the_separation_exactly(S):
+    k = safe_speed_scale(S, TERMS)
+    if S < TERMS.at_scale(0.0):
+        assert k == -1.0  # even at rest the person could reach the arm before it reacts: brake
+    else:
+        assert k >= 0 and TERMS.at_scale(k) == pytest.approx(S)  # as fast as the separation allows, no faster
+        assert TERMS.at_scale(k * 1.01) > S
+
+
+def test_more_latency_less_speed():
+    scales = [
+        safe_speed_scale(0.8, SeparationTerms(1.6, T_r, 0.3, 0.5, 0.1, 0.0, 0.01, 0.005, 0.004))
+        for T_r in (0.05, 0.1, 0.2, 0.3)
+    ]
+    assert scales == sorted(scales, reverse=True) and scales[-1] < scales[0]
+
+
+@pytest.fixture(scope="module")
+def scene(panda_cfg, panda):
+    stack = build_stack(panda_cfg, robot=panda, static=[table()], cameras=False)
+    traj = stack.generator.time(np.array([A, B]), velocity_scale=0.5)
+    return stack, traj
+
+
+def _view(traj, t: float) -> MotionView:
+    q = traj.state_at(t)[0]
+    return MotionView(t, q, np.array([q, B]), 0.5, (0.0, traj), ("test",))
+
+
+def _voxels_at(center, size=0.06, res=0.01) -> OccupancyMap:
+    g = np.arange(-size / 2, size / 2, res) + res / 2
+    pts = np.stack(np.meshgrid(g, g, g), -1).reshape(-1, 3) + center
+    return OccupancyMap.from_points(pts, res)
+
+
+@pytest.mark.parametrize("T_r", [0.05, 0.2, 0.4])
+def test_the_check_slows_or_brakes_as_the_formula_says(scene, panda_cfg, T_r):
+    stack, traj = scene
+    t = traj.duration / 2
+    check = SpeedSeparationCheck(
+        stack.checker, stack.generator, panda_cfg.controller.speed_separation, lambda now: T_r, lambda now: 0.0
+    )
+    top = stack.checker.body_poses(traj.state_at(t)[0])  # the arm's highest body origin: a "person" above it
+    above = top.poses[:, :3, 3][np.argmax(top.poses[:, 2, 3])]
+    try:
+        for gap in (0.25, 0.5, 0.9):
+            stack.world.set_occupancy(_voxels_at(above + [0.0, 0.0, gap + 0.03]))
+            verdict = check(_view(traj, t))
+            terms, S = check.last, check.last_separation
+            assert terms.T_r == T_r and 0 < S < gap  # to the nearest surface point, less the sampling gap
+            k = safe_speed_scale(S, terms)
+            if k < 0:
+                assert not verdict.clear and verdict.speed_factor == 0.0 and "speed and separation" in verdict.reason
+            else:
+                # the share of the trajectory's own nominal speed (its goal's velocity_scale is already in it)
+                assert verdict.clear and verdict.speed_factor == pytest.approx(min(1.0, k) if math.isfinite(k) else 1.0)
+    finally:
+        stack.world.set_occupancy(None)
+
+
+def _lowest_speed(panda_cfg, panda, camera_latency: float) -> tuple[float, object]:
+    cfg = panda_cfg.override(
+        {
+            "perception": {"sensors": [{**panda_cfg.perception.sensors[0].model_dump(), "width": 320, "height": 240}]},
+            "controller": {"safety_distance": 0.0},
+        }
+    )
+    box = ("person", Box(size=(0.1, 0.1, 0.1)), make_transform((0.85, 0.0, 1.0)))  # above the swing, never on it
+    sim = SteppedSim(cfg, [table()], robot=panda, seed=1, camera_latency=camera_latency)
+    try:
+        sim.add_obstacle(*box)  # only the cameras know it: possibly a person
+        sim.run_for(0.3)  # the first frames arrive `camera_latency` late
+        start = sim.controller.submit(Goal.joints("start", A))
+        sim.run_until(lambda: start.result is not None, 20, "the start")
+        h = sim.controller.submit(Goal.joints("across", B, velocity_scale=0.6))
+        lowest = 1.0
+        while h.result is None and sim.t < 60:
+            sim.step()
+            f = sim.controller.moves.speed_factor()
+            lowest = min(lowest, f) if f is not None else lowest
+        return lowest, h.result
+    finally:
+        sim.close()
+
+
+def test_the_arm_slows_down_when_the_latency_grows(panda_cfg, panda):
+    fast, res_fast = _lowest_speed(panda_cfg, panda, camera_latency=0.0)
+    slow, res_slow = _lowest_speed(panda_cfg, panda, camera_latency=0.08)  # frames arrive 80 ms late: T_r grows
+    assert res_fast.status == GoalStatus.SUCCEEDED and res_slow.status == GoalStatus.SUCCEEDED, (res_fast, res_slow)
+    assert slow < fast - 0.1 and fast < 1.0  # near the "person" both slow, the late one more
