@@ -252,8 +252,8 @@ class PerceptionConfig(Section):
 class PlanningConfig(Section):
     planner: str = Field("RRTConnect", description="Default OMPL planner (see replanner.planning.PLANNERS).")
     deadline: float = Field(1.0, gt=0.0, le=60.0, description="Default planning deadline [s], retries included.")
-    attempt_iterations: int = Field(
-        200, ge=1, description="Planner iterations per attempt before retrying with fresh random samples (a count)."
+    attempt_checks: int = Field(
+        1000, ge=1, description="Validity checks per attempt before retrying with fresh random samples (a count)."
     )
     shortcut_tries: int = Field(10, ge=0, description="Random shortcuts tried after the search (a count).")
     range: float | None = Field(1.5, gt=0.0, description="Planner step [rad]; null: OMPL's default.")
@@ -347,6 +347,13 @@ class ControllerConfig(Section):
         True, description="Plan in a child process (a second core; with the GIL a thread shares the monitor's core)."
     )
     driver_rate_hz: float = Field(200.0, gt=0.0, le=2000.0, description="Kinematic driver's joint-state rate [Hz].")
+    gil_switch_interval: float = Field(
+        0.0005,
+        ge=0.0001,
+        le=0.005,
+        description="How long a Python thread may hold the interpreter while the monitor waits [s] "
+        "(CPython's default is 0.005; set for the whole process when a controller is built).",
+    )
     speed_separation: SpeedSeparationConfig = Field(default_factory=SpeedSeparationConfig)
 
 

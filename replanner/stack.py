@@ -6,6 +6,7 @@ all use it.
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -91,6 +92,8 @@ def build_stack(
         stack.perception = Perception.from_config(cfg, robot, world)
     if execute is None:
         return stack
+    # the monitor thread must not wait CPython's default 5 ms for the interpreter behind perception or a planner
+    sys.setswitchinterval(cfg.controller.gil_switch_interval)
     ssm = cfg.controller.speed_separation
     sensors = cfg.perception.sensors if stack.perception is not None else []
     frame_period = max((1.0 / s.rate_hz for s in sensors), default=0.0)

@@ -34,6 +34,12 @@ ZENOH_PANEL = "Zenoh connection"
 ConfigOpt = Annotated[str, typer.Option("--config", "-c", help=CONFIG_HELP)]
 RobotOpt = Annotated[str | None, typer.Option("--robot", help=ROBOT_HELP)]
 JsonOpt = Annotated[bool, typer.Option("--json", help=JSON_HELP)]
+LoadOpt = Annotated[
+    int,
+    typer.Option(
+        "--load", min=0, max=16, help="Busy processes beside the run (a busy machine), stopped at its end; in the JSON."
+    ),
+]
 
 # zenoh-python's examples (common.py) add -m/--mode, -e/--connect, -l/--listen to every example the same way.
 ModeOpt = Annotated[

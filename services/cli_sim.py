@@ -17,12 +17,14 @@ from .cli_common import (
     ConfigOpt,
     ConnectOpt,
     ListenOpt,
+    LoadOpt,
     ModeOpt,
     ZenohConfigOpt,
     ZenohFlags,
     fail,
     resolve_config,
 )
+from .procs import Load
 
 app = typer.Typer()  # merged into the root app by cli.py (no name: its commands sit at the top level)
 
@@ -144,11 +146,7 @@ def pick_and_place(
             on_progress=progress,
         )
         task.setup()
-        t0 = time.time()
-        for _ in range(cycles):
-            if duration is not None and time.time() - t0 > duration:
-                break
-            task.run_cycle()
+        task.run(cycles, until=None if duration is None else time.time() + duration)
     except KeyboardInterrupt:
         print("pick-and-place: interrupted", file=sys.stderr)
     except ReplannerError as err:
@@ -170,6 +168,7 @@ def demo(
     json_path: str | None = typer.Option(None, "--json", help="Write the metrics to this JSON file."),
     plot: str | None = typer.Option(None, "--plot", help="Draw the timeline (state, clearance, events) to a PNG."),
     log_dir: str | None = typer.Option(None, "--log-dir", help="Keep the processes' logs and the truth here."),
+    load: LoadOpt = 0,
     verbose: bool = typer.Option(False, "-v", "--verbose"),
 ) -> None:
     """Sim, service and pick-and-place client as three processes on loopback; a table of what happened."""
@@ -185,16 +184,18 @@ def demo(
         _check_cell(cfg, config)
         if cfg.perception is None or not cfg.perception.sensors:
             raise ConfigError(f"{config}: the demo needs cameras (perception.sensors)")
-        metrics, rec, info = demo_mod.run(
-            config,
-            cfg,
-            cycles=cycles,
-            duration=duration,
-            seed=seed,
-            policy=policy,
-            log_dir=log_dir,
-            console=console,
-        )
+        with Load(load) as busy:
+            metrics, rec, info = demo_mod.run(
+                config,
+                cfg,
+                cycles=cycles,
+                duration=duration,
+                seed=seed,
+                policy=policy,
+                log_dir=log_dir,
+                console=console,
+            )
+        metrics["load"] = busy.describe()
         demo_mod.write_outputs(metrics, rec, info, cfg, json_path, plot)
     except ReplannerError as err:
         fail(err)

@@ -200,7 +200,16 @@ def table(metrics: dict) -> Table:
             "{started} / {spliced} / {cancelled} / {failed}".format(**metrics["replans"]),
         ),
         ("brakes", str(metrics["brakes"])),
+        ("cycles failed (and carried on)", str(metrics["cycles_failed"])),
         ("reaction, median / p95", lat("reaction_s")),
+        ("service T_r (speed and separation), median / p95", lat("service_reaction_time_s")),
+        (
+            "sim real-time factor, median / p95",
+            "{median:.2f} / {p95:.2f}".format(**metrics["real_time_factor"])
+            if metrics["real_time_factor"]["n"]
+            else "-",
+        ),
+        ("busy processes alongside", str(metrics.get("load", {}).get("busy_processes", 0))),
         ("replan, median / p95", lat("replan_s")),
         ("clearing, median / p95", lat("clearing_s")),
         ("duration", f"{metrics['duration_s']:.1f} s"),

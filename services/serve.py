@@ -60,6 +60,7 @@ class Service:
         self.pub_results = s.declare_publisher(k.results)
         self.pub_trajectory = s.declare_publisher(k.trajectory)
         self.pub_rejections = s.declare_publisher(k.rejections)
+        self.pub_latency = s.declare_publisher(k.latency)
         self.controller.subscribe(on_transition=self._on_transition, on_result=self._on_result)
         self.controller.start()
         for name in (
@@ -162,7 +163,9 @@ class Service:
         period = 1.0 / self.cfg.transport.status_rate_hz
         while not self._stop.wait(period):
             try:
-                self.pub_status.put(m.dumps(self.state()))
+                state = self.state()
+                self.pub_status.put(m.dumps(state))
+                self.pub_latency.put(m.dumps({"stamp": state["stamp"], **state["latency"]}))
             except Exception:
                 log.exception("status publishing failed")
 

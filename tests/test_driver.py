@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -24,11 +25,51 @@ def test_timeline_replaces_from_the_start_time(panda):
     np.testing.assert_allclose(tl.state(99.0)[0], panda.home - 0.2)  # after the end: holds the end
 
 
-def test_driver_reports_at_its_rate(panda):
-    got = []
-    drv = KinematicDriver(panda.home, rate_hz=200, on_state=got.append).start()
-    time.sleep(0.5)
+class VirtualClock:
+    """A clock only the test moves: the driver's waits advance it (no wall time involved)."""
+
+    def __init__(self, t: float = 100.0):
+        self.t = t
+        self.lock = threading.Lock()
+
+    def __call__(self) -> float:
+        with self.lock:
+            return self.t
+
+    def wait(self, dt: float) -> None:
+        with self.lock:
+            self.t += dt
+        time.sleep(0)  # let the test's thread run
+
+
+def _collect(drv, got, n: int) -> None:
+    drv.start()
+    end = time.monotonic() + 30  # a bound on a hung thread only: the figures come from the virtual clock
+    while len(got) < n and time.monotonic() < end:
+        time.sleep(0.001)
     drv.stop()
-    stamps = np.array([s.stamp for s in got])
-    assert 80 <= len(got) <= 110
-    assert np.median(np.diff(stamps)) < 0.007
+    assert len(got) >= n
+
+
+def test_driver_reports_at_its_rate(panda):
+    clock, got = VirtualClock(), []
+    drv = KinematicDriver(panda.home, rate_hz=200, on_state=got.append, clock=clock, wait=clock.wait)
+    _collect(drv, got, 100)
+    np.testing.assert_allclose(np.diff([s.stamp for s in got[:100]]), 0.005, atol=1e-9)
+
+
+def test_driver_that_falls_behind_does_not_burst(panda):
+    clock, got = VirtualClock(), []
+
+    def on_state(js):
+        got.append(js)
+        if len(got) == 10:
+            clock.wait(0.1)  # the machine stalls for 20 periods inside one callback
+
+    drv = KinematicDriver(panda.home, rate_hz=200, on_state=on_state, clock=clock, wait=clock.wait)
+    _collect(drv, got, 30)
+    gaps = np.diff([s.stamp for s in got[:30]])
+    assert gaps[9] >= 0.1 - 1e-9  # the stall itself
+    np.testing.assert_allclose(np.delete(gaps, 9), 0.005, atol=1e-9)  # then the rate again, no catch-up burst
+
+

@@ -21,7 +21,7 @@ def test_keys_are_versioned_and_validated():
     assert k.goal == "lab/cell3/@v1/panda/goal"
     assert k.scene_add == "lab/cell3/@v1/panda/scene/add"
     assert k.cloud("front") == "lab/cell3/@v1/panda/clouds/front"
-    assert len(KEYS) == 19
+    assert len(KEYS) == 20
     for bad in ("pan da", "a/*", "", "x/"):
         with pytest.raises(InvalidInputError, match="letters, digits"):
             Keys(bad)

@@ -93,6 +93,7 @@ class PickAndPlace:
         if st["grasped"]:
             raise ServiceError("the simulator's gripper holds the part: restart `replanner sim`")
         pos, quat = st["part"][:3], st["part"][3:]
+        # the part in the service's scene where the simulator says it is
         if "part" in objects:
             self.client.move_object("part", pos, quat)
         else:
@@ -127,7 +128,10 @@ class PickAndPlace:
         raise ServiceError(f"{what}: no success in {self.retries} attempts")
 
     def run_cycle(self) -> dict:
-        """Carry the part to the other bin; returns where the simulator says it came to rest."""
+        """Carry the part to the other bin; returns where the simulator says it came to rest.
+
+        A cycle takes up from where things are: after a failed one the part may already be in the hand.
+        """
         self.cycle += 1
         t = self.task
         st = self.gripper.state()
@@ -137,10 +141,11 @@ class PickAndPlace:
         h = t.part_size[2]
         top = part + [0, 0, h / 2]
         self.on_progress({"cycle": self.cycle, "step": "start", "from": src, "to": dst})
-        self._goal(top + [0, 0, t.approach_height], f"above {src}")
-        self._goal(top + [0, 0, t.grasp_gap], f"down to the part in {src}")
-        self.gripper.grasp()
-        self.client.attach("part", self.tip_link, support=self._support(part, src))
+        if not st["grasped"]:
+            self._goal(top + [0, 0, t.approach_height], f"above {src}")
+            self._goal(top + [0, 0, t.grasp_gap], f"down to the part in {src}")
+            self.gripper.grasp()
+            self.client.attach("part", self.tip_link, support=self._support(part, src))
         self._goal(top + [0, 0, t.approach_height], f"lift from {src}")
         floor = self.bin_tops[dst]
         drop_top = np.array([floor[0], floor[1], floor[2] + t.place_gap + h])
@@ -152,6 +157,21 @@ class PickAndPlace:
         self._goal(drop_top + [0, 0, t.approach_height], f"up from {dst}")
         self.on_progress({"cycle": self.cycle, "step": "done", "on": rel.get("on")})
         return rel
+
+    def run(self, cycles: int, until: float | None = None) -> int:
+        """Run `cycles` cycles (or until time.time() passes `until`); a cycle that cannot finish is counted as failed
+        and the next one takes up from where things are. Returns the failed cycles."""
+        failed = 0
+        for _ in range(cycles):
+            if until is not None and time.time() > until:
+                break
+            try:
+                self.run_cycle()
+            except ServiceError as err:
+                failed += 1
+                self.on_progress({"cycle": self.cycle, "step": "failed", "reason": str(err)})
+                log.warning("cycle %d failed: %s; the next one takes up from here", self.cycle, err)
+        return failed
 
     def _support(self, center: np.ndarray, src: str, reach: float = 0.03) -> list[str]:
         """The bin and whatever else is within `reach` below the part (the table under a thin floor)."""

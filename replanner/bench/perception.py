@@ -7,6 +7,7 @@ import time
 import numpy as np
 
 from ..config import ReplannerConfig
+from ..errors import ConfigError
 from ..perception import CameraModel, CloudFrame, Perception, pose_from_config
 from ..stats import summary
 from ..world.geometry import Box
@@ -34,7 +35,7 @@ def run(
 ) -> dict:
     """Time `frames` frames (after `warmup` untimed ones) of the first configured sensor; inputs fixed by `seed`."""
     if cfg.perception is None or not cfg.perception.sensors:
-        raise ValueError("the config has no perception section with a sensor; add one (see configs/panda.yaml)")
+        raise ConfigError("the config has no perception section with a sensor; add one (see configs/panda.yaml)")
     rng = np.random.default_rng(seed)
     robot = RobotModel.from_config(cfg.robot)
     world = World(robot)

@@ -445,9 +445,10 @@ class Controller:
         moving = self.moves.timeline.moving(now)
         clear = self.monitor.check_path(view).clear
         self._clear_count = self._clear_count + 1 if clear else 0
-        if self._resumable and self._clear_count >= self.cfg.clear_checks and not moving:
+        room = moving or self.monitor.check_speed(view).blocking is None  # may it move at all (people near)?
+        if self._resumable and self._clear_count >= self.cfg.clear_checks and not moving and room:
             # everything that can block, nothing remembered: a resume must not re-enter a blocked path
-            final = self.monitor.check_path(view, fresh=True).blocking or self.monitor.check_speed(view).blocking
+            final = self.monitor.check_path(view, fresh=True).blocking
             if final is None:
                 self.moves.resume()
                 self.resume(reason=f"the path was clear for {self._clear_count} checks")
@@ -456,7 +457,7 @@ class Controller:
         if now - self._hold_since > self.cfg.hold_timeout:
             self._finish(GoalStatus.FAILED, f"the path stayed blocked for {self.cfg.hold_timeout} s")
             self.give_up(reason=f"blocked for {self.cfg.hold_timeout} s")
-        elif not moving and self._job is None and now - self._hold_planned > self.cfg.hold_replan_interval:
+        elif room and not moving and self._job is None and now - self._hold_planned > self.cfg.hold_replan_interval:
             self._hold_planned = now
             self._launch(JobPurpose.HOLD, self._deadline())
 

@@ -33,6 +33,7 @@ class KinematicDriver:
         rate_hz: joint-state rate.
         on_state: called with each JointState (from the driver's thread; must not block).
         clock: time source [s], shared with the controller.
+        wait: wait(seconds) between states; default: a real wait (a test passes one that moves its own clock).
     """
 
     def __init__(
@@ -41,6 +42,7 @@ class KinematicDriver:
         rate_hz: float = 200.0,
         on_state: Callable[[JointState], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
+        wait: Callable[[float], object] | None = None,
     ):
         self.timeline = Timeline(q0)
         self.rate_hz = float(rate_hz)
@@ -48,6 +50,7 @@ class KinematicDriver:
         self._subscribers: list[Callable[[JointState], None]] = [on_state] if on_state else []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._wait = wait or self._stop.wait
         self.silent = False  # tests stop the stream to exercise the controller's watchdog
 
     def subscribe(self, callback: Callable[[JointState], None]) -> None:
@@ -87,6 +90,6 @@ class KinematicDriver:
             next_t += period
             delay = next_t - self.clock()
             if delay > 0:
-                self._stop.wait(delay)
+                self._wait(delay)
             else:
                 next_t = self.clock()  # fell behind: do not burst

@@ -57,24 +57,45 @@ class Check(ABC):
 
 
 class MapPathCheck(Check):
-    """The remaining path against the occupancy map (where people show up): every cycle, boolean, no distances."""
+    """The remaining path against the occupancy map (where people show up): every cycle, boolean, no distances.
+
+    A path clear of one map is clear of the next if it is clear of what the next added (voxels that left cannot
+    block): when the map follows the one the path was last found clear of, only its new voxels are checked.
+    """
 
     name = "map"
 
     def __init__(self, checker: CollisionChecker):
         self.checker = checker
+        self._clear_of: tuple | None = None  # (path key, map) the path was last found clear of
 
     def __call__(self, view: MotionView, fresh: bool = False) -> Verdict:
-        if len(view.path) < 2 or self.checker.path_valid(view.path, octree_only=True):
-            return self.clear()
-        return Verdict(self.name, False, "an obstacle is on the remaining path")
+        occ = self.checker.world.snapshot().occupancy
+        memo = self._clear_of
+        if len(view.path) < 2:
+            clear = True
+        elif not fresh and memo is not None and memo[0] == view.key and memo[1] is occ:
+            clear = True
+        elif not fresh and memo is not None and memo[0] == view.key and _follows(occ, memo[1]):
+            added = occ.added_map
+            clear = added is None or self.checker.path_valid(view.path, octree_only=True, occupancy=added)
+        else:
+            clear = self.checker.path_valid(view.path, octree_only=True)
+        self._clear_of = (view.key, occ) if clear else None
+        return self.clear() if clear else Verdict(self.name, False, "an obstacle is on the remaining path")
+
+
+def _follows(occ, before) -> bool:
+    """`occ` is the map right after `before` and says what it added."""
+    return occ is not None and before is not None and occ.added is not None and occ.serial == before.serial + 1 > 1
 
 
 class ScenePathCheck(Check):
-    """The remaining path against static objects, attachments and the robot itself.
+    """The remaining path against the map, static objects and attachments (everything a scene edit can change).
 
-    A planned path was checked against all of them; a clear verdict holds until the scene changes (any edit) or the
-    path is read from other trajectories, so it is remembered per (scene version, trajectories).
+    A planned path was checked against all of them and against the robot itself (which no edit changes); a clear
+    verdict holds until the scene changes or the path is read from other trajectories, so it is remembered per
+    (scene version, trajectories).
     """
 
     name = "scene"
@@ -88,7 +109,7 @@ class ScenePathCheck(Check):
         memo = (version, view.key)
         if not fresh and memo == self._clear_for:
             return self.clear()
-        result = self.checker.check_path(view.path) if len(view.path) >= 2 else None
+        result = self.checker.check_path(view.path, robot_pairs=False) if len(view.path) >= 2 else None
         if result is None or result.valid:
             self._clear_for = memo
             return self.clear()
@@ -134,7 +155,7 @@ class StopRegionCheck(Check):
         if s_b - s_a < 1e-6:
             return self.clear()
         pts = traj.curve.eval(np.linspace(s_a, s_b, max(2, int((s_b - s_a) / 0.02) + 2)))
-        result = self.checker.check_path(pts)
+        result = self.checker.check_path(pts, robot_pairs=False)  # along the path: the robot's pairs were checked
         if result.valid:
             return self.clear()
         reason = f"braking now is the last chance to stop before the obstacle ({result.contact})"

@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 
 from ..world.geometry import Box, ConvexHull, Cylinder, Mesh, Shape, Sphere
 from ..world.scene import WorldSnapshot
+from .kernels import cell_keys, mark_inside, neighbour_counts
 
 
 def finite_in_range(rows: np.ndarray, origin, min_range: float, max_range: float) -> np.ndarray:
@@ -42,7 +43,7 @@ class VoxelGrid:
         # inner box: points here map to non-margin cells
         self.lo = (self.key_lo + 1) * resolution
         self.hi = (key_hi - 1 + 1) * resolution - 1e-9
-        self._scratch = np.full(self.size, False)  # written now, so no page faults mid-frame
+        self.scratch = np.full(self.size, False)  # all False between uses; written now: no page faults mid-frame
         offsets = [
             (dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1) if (dx, dy, dz) != (0, 0, 0)
         ]
@@ -64,17 +65,14 @@ class VoxelGrid:
 
     def keys(self, flat: np.ndarray) -> np.ndarray:
         """Integer OctoMap-grid voxel keys (N, 3) of flat indices."""
-        nx, ny, nz = self.shape
-        ix, rem = np.divmod(flat, ny * nz)
-        iy, iz = np.divmod(rem, nz)
-        return np.stack([ix, iy, iz], axis=1) + self.key_lo
+        return cell_keys(np.ascontiguousarray(flat, dtype=np.int64), self.shape[1], self.shape[2], self.key_lo)
 
     def centers(self, flat: np.ndarray) -> np.ndarray:
         return (self.keys(flat) + 0.5) * self.resolution
 
     def unique(self, flat: np.ndarray) -> np.ndarray:
         """Sorted unique flat indices (a scatter into a boolean grid: no sort of N points)."""
-        s = self._scratch
+        s = self.scratch
         s[flat] = True
         lo, hi = int(flat.min()), int(flat.max()) + 1
         out = np.flatnonzero(s[lo:hi]) + lo
@@ -83,13 +81,7 @@ class VoxelGrid:
 
     def neighbour_counts(self, flat: np.ndarray) -> np.ndarray:
         """For each of the given (unique) cells, how many of its 26 neighbours are among them."""
-        s = self._scratch
-        s[flat] = True
-        count = np.zeros(len(flat), dtype=np.int64)
-        for off in self.neighbour_offsets:
-            count += s[flat + off]
-        s[flat] = False
-        return count
+        return neighbour_counts(np.ascontiguousarray(flat, dtype=np.int64), self.neighbour_offsets, self.scratch)
 
 
 def statistical_outliers(centers: np.ndarray, k: int, std_ratio: float) -> np.ndarray:
@@ -144,66 +136,121 @@ class SelfFilter:
     the world's known static objects (within `static_padding` [m]; None keeps them).
     """
 
-    def __init__(self, robot, padding: float, static_padding: float | None = 0.01):
+    def __init__(self, robot, padding: float, static_padding: float | None = 0.01, grid: VoxelGrid | None = None):
         self.robot = robot
         self.padding = float(padding)
         self.static_padding = static_padding
+        # the robot's own bodies never change: their rows and link offsets are stacked once
+        self._robot_bodies = _Stack([_padded_local(b.shape, self.padding) for b in robot.bodies])
+        self._robot_slots = [robot.frame_offset(b.link)[0] for b in robot.bodies]
+        self._robot_offsets = np.array([robot.frame_offset(b.link)[1] @ b.T_link_body for b in robot.bodies])
+        # grid: the known objects are drawn into it once per scene version; then a cell's test is one lookup
+        self.grid = grid
+        self._drawn: dict[int, np.ndarray] = {}
 
-    def _bodies(self, q: np.ndarray, snapshot: WorldSnapshot | None):
-        """(pose, shape, padding) of everything whose points are not obstacles; known objects first (the
-        table takes most points, and each later body only tests the points still kept)."""
+    def keep_mask(
+        self, points: np.ndarray, q: np.ndarray, snapshot: WorldSnapshot | None = None, cells: np.ndarray | None = None
+    ) -> np.ndarray:
+        """True for points (N, 3) in the base frame that are neither the robot's at q nor a known object's.
+
+        cells: the points' flat cells in `grid` when the points are those cells' centres (the objects' test is
+        then a lookup in the drawn grid, same verdicts).
+        """
         r = self.robot
-        if snapshot is not None and self.static_padding is not None:
-            for o in snapshot.objects.values():
-                yield o.pose, o.shape, self.static_padding
         frames = r.frames(np.asarray(q, dtype=float)[None])[0]
-
-        def pose(link, T_link_body):
-            slot, T_frame_link = r.frame_offset(link)
-            return frames[slot] @ T_frame_link @ T_link_body
-
-        for b in r.bodies:
-            yield pose(b.link, b.T_link_body), b.shape, self.padding
-        if snapshot is not None:
-            for a in snapshot.attachments.values():
-                yield pose(a.link, a.T_link_object), a.shape, self.padding
-
-    def keep_mask(self, points: np.ndarray, q: np.ndarray, snapshot: WorldSnapshot | None = None) -> np.ndarray:
-        """True for points (N, 3) in the base frame that are neither the robot's at q nor a known object's."""
         keep = np.ones(len(points), dtype=bool)
-        rows = np.ascontiguousarray(points.T, dtype=np.float32)
-        homog = np.vstack([rows, np.ones((1, len(points)), np.float32)])
-        for T, shape, pad in self._bodies(q, snapshot):
-            Dh, lo, hi = _padded_constraints(shape, pad)
-            R, t = T[:3, :3], T[:3, 3]
-            # world box of the padded body first, then the support test: max_k (D_k x_local - h_k - pad) <= 0
-            c, e = (lo + hi) / 2, (hi - lo) / 2 + pad
-            wlo, whi = R @ c + t - np.abs(R) @ e, R @ c + t + np.abs(R) @ e
-            box = keep.copy()
-            for axis in range(3):
-                box &= (rows[axis] >= wlo[axis]) & (rows[axis] <= whi[axis])
-            near = np.flatnonzero(box)
-            if not len(near):
-                continue
-            T_inv = np.eye(4)
-            T_inv[:3, :3], T_inv[:3, 3] = R.T, -R.T @ t
-            if isinstance(shape, Box):  # a box grown by pad along its axes (a little more at the corners)
-                local = (T_inv[:3, :3] @ rows[:, near]).T + T_inv[:3, 3]
-                inside = np.all(np.abs(local - c) <= e, axis=1)
-                keep[near[inside]] = False
-                continue
-            M = (Dh @ T_inv).astype(np.float32)  # constraints on base-frame points
-            # the sphere directions alone bound a larger polytope: points outside it skip the face rows
-            coarse = (M[-N_DIRECTIONS:] @ homog[:, near]).max(axis=0) <= 0.0
-            near = near[coarse]
-            if len(near) and len(M) > N_DIRECTIONS:
-                near = near[(M[:-N_DIRECTIONS] @ homog[:, near]).max(axis=0) <= 0.0]
-            keep[near] = False
+        objects = [] if snapshot is None or self.static_padding is None else list(snapshot.objects.values())
+        stacks, poses = [], []
+        if objects and cells is not None and self.grid is not None:
+            keep &= ~self._drawn_objects(snapshot)[cells]
+        elif objects:  # known objects first: the table takes most points, later bodies test only what is kept
+            stacks.append(_Stack([_padded_local(o.shape, float(self.static_padding)) for o in objects]))
+            poses.append(np.array([o.pose for o in objects]))
+        if self._robot_slots:
+            stacks.append(self._robot_bodies)
+            poses.append(frames[self._robot_slots] @ self._robot_offsets)
+        carried = [] if snapshot is None else list(snapshot.attachments.values())
+        if carried:
+            stacks.append(_Stack([_padded_local(a.shape, self.padding) for a in carried]))
+            offsets = [r.frame_offset(a.link) for a in carried]
+            poses.append(np.array([frames[i] @ T @ a.T_link_object for (i, T), a in zip(offsets, carried)]))
+        if poses:
+            _mark(points, keep, _Stack.join(stacks) if len(stacks) > 1 else stacks[0], np.concatenate(poses))
         return keep
+
+    def _drawn_objects(self, snapshot: WorldSnapshot) -> np.ndarray:
+        """Boolean over the grid's cells: the centre lies in a padded known object (cached per scene version)."""
+        hit = self._drawn.get(snapshot.version)
+        if hit is not None:
+            return hit
+        g, objects = self.grid, list(snapshot.objects.values())
+        drawn = np.zeros(g.size, dtype=bool)
+        for o in objects:
+            st = _Stack([_padded_local(o.shape, float(self.static_padding))])
+            T = o.pose[None]
+            lo, hi = _world_box(st, T)
+            a = np.clip(np.floor(lo[0] / g.resolution).astype(np.int64), g.key_lo + 1, None)
+            b = np.clip(np.floor(hi[0] / g.resolution).astype(np.int64), None, g.key_lo + np.array(g.shape) - 2)
+            if np.any(b < a):
+                continue
+            axes = [np.arange(a[i], b[i] + 1) for i in range(3)]
+            keys = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+            inside = np.ones(len(keys), dtype=bool)
+            _mark((keys + 0.5) * g.resolution, inside, st, T)
+            flat = (keys[~inside] - g.key_lo) @ g.strides
+            drawn[flat] = True
+        if len(self._drawn) >= 4:  # the scene now and as it was at a frame's stamp: a few versions at most
+            self._drawn.pop(next(iter(self._drawn)))
+        self._drawn[snapshot.version] = drawn
+        return drawn
+
+
+def _world_box(st: _Stack, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World boxes (B, 3) lo, hi of stacked bodies at poses T (B, 4, 4)."""
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    wc = np.einsum("bij,bj->bi", R, st.center) + t
+    ext = np.einsum("bij,bj->bi", np.abs(R), st.extent)
+    return wc - ext, wc + ext
+
+
+def _mark(points: np.ndarray, keep: np.ndarray, st: _Stack, T: np.ndarray) -> None:
+    """keep[i] = False for the points inside one of the stacked bodies at poses T (B, 4, 4)."""
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    lo, hi = _world_box(st, T)
+    Rt = np.ascontiguousarray(R.transpose(0, 2, 1))
+    inv = np.concatenate([Rt, -np.einsum("bij,bj->bi", Rt, t)[:, :, None]], axis=2)  # base → body (B, 3, 4)
+    mark_inside(np.ascontiguousarray(points, dtype=np.float32), keep, lo, hi, inv, st.rows, st.starts)
+
+
+class _Stack:
+    """Bodies' local rows stacked for `mark_inside`: rows[starts[b]:starts[b + 1]] and the local box of body b."""
+
+    def __init__(self, parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]]):
+        self.rows = np.ascontiguousarray(np.vstack([p[0] for p in parts])) if parts else np.zeros((0, 4))
+        self.starts = np.cumsum([0] + [len(p[0]) for p in parts]).astype(np.int64)
+        self.center = np.array([p[1] for p in parts]).reshape(-1, 3)
+        self.extent = np.array([p[2] for p in parts]).reshape(-1, 3)
+
+    @classmethod
+    def join(cls, stacks: list[_Stack]) -> _Stack:
+        out = cls([])
+        out.rows = np.ascontiguousarray(np.vstack([s.rows for s in stacks]))
+        offsets = np.cumsum([0] + [s.starts[-1] for s in stacks[:-1]])
+        out.starts = np.concatenate([stacks[0].starts[:1]] + [s.starts[1:] + o for s, o in zip(stacks, offsets)])
+        out.center = np.vstack([s.center for s in stacks])
+        out.extent = np.vstack([s.extent for s in stacks])
+        return out
 
 
 @lru_cache(maxsize=1024)
-def _padded_constraints(shape: Shape, pad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rows [D, -(h + pad)] (K, 4) of the support test in homogeneous form, and the shape's local box."""
+def _padded_local(shape: Shape, pad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows (K, 4) of `shape` grown by `pad` in its own frame (a x + b y + c z + d <= 0 inside); the centre and
+    half extent of its padded local box."""
     D, h, lo, hi = _support_constraints(shape)
-    return np.hstack([D, -(h + pad)[:, None]]), lo, hi
+    c, e = (lo + hi) / 2, (hi - lo) / 2 + pad
+    if isinstance(shape, Box):  # a box grown by pad along its axes (a little more at the corners)
+        eye = np.eye(3)
+        return np.vstack([np.hstack([eye, -(c + e)[:, None]]), np.hstack([-eye, (c - e)[:, None]])]), c, e
+    rows = np.hstack([D, -(h + pad)[:, None]])
+    # the sphere directions alone bound a larger polytope: most points outside fail one of them first
+    return np.vstack([rows[-N_DIRECTIONS:], rows[:-N_DIRECTIONS]]), c, e

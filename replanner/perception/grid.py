@@ -13,6 +13,7 @@ import numpy as np
 
 from ..sections import OccupancyUpdateConfig
 from .filters import VoxelGrid
+from .kernels import in_sorted, union_sorted
 
 
 class LogOddsGrid:
@@ -37,14 +38,14 @@ class LogOddsGrid:
         `shadow`: voxels hidden just behind the hits; they count as hits (occluded space next to a surface).
         """
         if shadow is not None and len(shadow):
-            hits = np.union1d(hits, shadow)
+            hits = union_sorted(hits, shadow)
         lo = self.logodds
         if len(misses):
             lo[misses] += self.cfg.miss
         if len(hits):
             lo[hits] = np.minimum(lo[hits] + self.cfg.hit, self.cfg.clamp_max)
             self.last_hit[hits] = stamp
-        merged = np.union1d(self.active, hits) if len(hits) else self.active
+        merged = union_sorted(self.active, hits) if len(hits) else self.active
         keep = lo[merged] > 0.0
         gone = merged[~keep]
         lo[gone] = 0.0  # back to unknown: the next hit makes it occupied again at once
@@ -63,7 +64,7 @@ class LogOddsGrid:
     def forget(self, flat: np.ndarray) -> None:
         """Drop these voxels (e.g. inside an object the world now knows): unknown again."""
         self.logodds[flat] = 0.0
-        self.active = np.setdiff1d(self.active, flat, assume_unique=True)
+        self.active = self.active[~in_sorted(self.active, np.sort(flat))]
 
     def clear(self) -> None:
         self.logodds[self.active] = 0.0

@@ -28,6 +28,7 @@ from .camera import CameraModel, pose_from_config
 from .filters import SelfFilter, VoxelGrid, finite_in_range, statistical_outliers
 from .grid import LogOddsGrid
 from .jointstate import JointStateBuffer
+from .kernels import in_sorted, shadow_cells, union_sorted, voxelize, warm_up
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +98,7 @@ class Perception:
     """
 
     def __init__(self, cfg: PerceptionConfig, robot: RobotModel, world: World, *, broadphase_cell: float = 0.04):
+        warm_up()
         self.cfg = cfg
         self.robot = robot
         self.world = world
@@ -105,15 +107,18 @@ class Perception:
         self.sensors = {s.name: _Sensor(s) for s in cfg.sensors}
         self.joint_states = JointStateBuffer(robot.dof)
         sf = cfg.self_filter
-        self.self_filter = SelfFilter(robot, sf.padding, sf.static_objects_padding) if sf.enabled else None
+        self.self_filter = SelfFilter(robot, sf.padding, sf.static_objects_padding, self.grid) if sf.enabled else None
         # inferred voxels stay two voxels clear of known surfaces too: next to one, no camera could clear them
         static = None if sf.static_objects_padding is None else sf.static_objects_padding + 2 * cfg.resolution
-        self._shadow_filter = SelfFilter(robot, sf.padding, static) if sf.enabled else None
+        self._shadow_filter = SelfFilter(robot, sf.padding, static, self.grid) if sf.enabled else None
         # what lies inside the arm itself is no obstacle: the space is the arm's (cameras cannot see behind it)
         self._inside_arm = SelfFilter(robot, 0.5 * cfg.resolution, None) if sf.enabled else None
         self._broadphase_cell = broadphase_cell
         self._filtered_version = -1
         self._subscribers: list[Callable[[str, float], None]] = []
+        self._serial = 0
+        self._published = np.zeros(0, dtype=np.int64)
+        self._cells_out = np.zeros(0, dtype=np.int64)  # the active voxels of the last map (sorted flat indices)
 
     @classmethod
     def from_config(cls, cfg, robot: RobotModel, world: World) -> Perception:
@@ -135,6 +140,7 @@ class Perception:
     def clear(self) -> None:
         """Forget every voxel and publish an empty map."""
         self.map.clear()
+        self._published = np.zeros(0, dtype=np.int64)
         self.world.set_occupancy(OccupancyMap.empty(self.cfg.resolution, broadphase_cell=self._broadphase_cell))
 
     # ------------------------------------------------------------------ validation
@@ -242,31 +248,35 @@ class Perception:
             t_prev = now
 
         lap("validate")
-        # rows x, y, z of the base-frame cloud: contiguous rows make every test below a cheap vector op
-        W = T[:3, :3].astype(np.float32) @ pts.T + T[:3, 3:4].astype(np.float32)
-        if cfg.range_filter:
-            ok = finite_in_range(W, T[:3, 3], sensor.cfg.min_range, sensor.cfg.max_range)
-        else:
-            ok = np.isfinite(W).all(axis=0)
-        rep.counts["range"] = int(ok.sum())
-        if rep.counts["range"] == 0 and not np.isfinite(pts).any():
-            self._reject(sensor, f"{sensor.cfg.name}: the cloud has no finite point (all NaN or inf)")
-        lap("range")
-        lo, hi = self.grid.lo, self.grid.hi
-        for axis in range(3):
-            ok &= (W[axis] >= lo[axis]) & (W[axis] <= hi[axis])
-        idx = np.flatnonzero(ok)
-        rep.counts["crop"] = len(idx)
-        lap("transform_crop")
-        if len(idx):
-            flat = self.grid.flat_rows(W[:, idx])
-            if cfg.downsample:
-                flat = self.grid.unique(flat)
-                work = self.grid.centers(flat)
-            else:
-                work = W[:, idx].T
-            rep.counts["voxels" if cfg.downsample else "points"] = len(flat)
+        ok = None  # the per-point range mask: only a cloud that is not organized needs it (for clearing)
+        if cfg.downsample:
+            flat, rep.counts["range"], rep.counts["crop"] = self._voxelize(pts, T, sensor, cfg.range_filter)
+            if rep.counts["range"] == 0 and not np.isfinite(pts).any():
+                self._reject(sensor, f"{sensor.cfg.name}: the cloud has no finite point (all NaN or inf)")
+            if not frame.organized and depth is None:
+                ok = self._in_range(pts, T, sensor, cfg.range_filter)
+            work = self.grid.centers(flat)
+            rep.counts["voxels"] = len(flat)
             lap("voxel_grid")
+        else:
+            # rows x, y, z of the base-frame cloud: contiguous rows make every test below a cheap vector op
+            W = T[:3, :3].astype(np.float32) @ pts.T + T[:3, 3:4].astype(np.float32)
+            ok = self._in_range(pts, T, sensor, cfg.range_filter, W)
+            rep.counts["range"] = int(ok.sum())
+            if rep.counts["range"] == 0 and not np.isfinite(pts).any():
+                self._reject(sensor, f"{sensor.cfg.name}: the cloud has no finite point (all NaN or inf)")
+            lap("range")
+            lo, hi = self.grid.lo, self.grid.hi
+            for axis in range(3):
+                ok &= (W[axis] >= lo[axis]) & (W[axis] <= hi[axis])
+            idx = np.flatnonzero(ok)
+            rep.counts["crop"] = len(idx)
+            lap("transform_crop")
+            flat = self.grid.flat_rows(W[:, idx]) if len(idx) else np.zeros(0, dtype=np.int64)
+            work = W[:, idx].T
+            rep.counts["points"] = len(flat)
+            lap("voxel_grid")
+        if len(flat):
             # outliers first: their statistics must be the scene's, not those of what the self-filter leaves
             voxels = flat if cfg.downsample else self.grid.unique(flat)
             keep = self._outlier_mask(voxels)
@@ -278,7 +288,7 @@ class Perception:
             rep.counts["outliers"] = len(flat)
             lap("outliers")
             if self.self_filter is not None:
-                keep = self._known_mask(self.self_filter, work, q, snapshot, then)
+                keep = self._known_mask(self.self_filter, work, q, snapshot, then, flat if cfg.downsample else None)
                 flat, work = flat[keep], work[keep]
             if not cfg.downsample:
                 flat = self.grid.unique(flat)
@@ -290,13 +300,14 @@ class Perception:
         else:
             flat = shadow = np.zeros(0, dtype=np.int64)
         hits = flat
-        hit_now = np.union1d(hits, shadow) if len(shadow) else hits
+        hit_now = union_sorted(hits, shadow) if len(shadow) else hits
         misses = self._seen_through(sensor, T, pts, ok, frame.organized, depth, hit_now)
         self.map.update(hits, misses, stamp, shadow)
         if self.self_filter is not None and snapshot.version != self._filtered_version and len(self.map.active):
             # the scene changed (an object added, moved, attached): what is now known is no obstacle
             self._filtered_version = snapshot.version
-            known = ~self.self_filter.keep_mask(self.grid.centers(self.map.active), q, snapshot)
+            active = self.map.active
+            known = ~self.self_filter.keep_mask(self.grid.centers(active), q, snapshot, active)
             if known.any():
                 self.map.forget(self.map.active[known])
         if self._inside_arm is not None and q is not None and len(self.map.active):
@@ -316,12 +327,45 @@ class Perception:
             cb(sensor.cfg.name, stamp)
         return rep
 
+    def _voxelize(self, pts: np.ndarray, T: np.ndarray, sensor, range_filter: bool) -> tuple[np.ndarray, int, int]:
+        """Sorted unique workspace cells of the frame's points in range; and how many were in range, in the crop."""
+        g, c = self.grid, sensor.cfg
+        r2min, r2max = (c.min_range**2, c.max_range**2) if range_filter else (-1.0, np.inf)
+        out = self._cells_out if len(self._cells_out) >= len(pts) else np.empty(len(pts), dtype=np.int64)
+        self._cells_out = out
+        n_range, n_crop, m = voxelize(
+            np.ascontiguousarray(pts, dtype=np.float32),
+            T[:3, :3].astype(np.float32),
+            T[:3, 3].astype(np.float32),
+            np.float32(r2min),
+            np.float32(r2max),
+            g.lo.astype(np.float32),
+            g.hi.astype(np.float32),
+            (g.key_lo * g.resolution).astype(np.float64),
+            1.0 / g.resolution,
+            int(g.strides[0]),
+            int(g.strides[1]),
+            g.scratch,
+            out,
+        )
+        return np.sort(out[:m]), int(n_range), int(n_crop)
+
     @staticmethod
-    def _known_mask(sf: SelfFilter, pts: np.ndarray, q, now, then) -> np.ndarray:
-        """Keep mask: neither the robot nor a known object, as the scene is now and as it was at the stamp."""
-        keep = sf.keep_mask(pts, q, now)
+    def _in_range(pts: np.ndarray, T: np.ndarray, sensor, range_filter: bool, W: np.ndarray | None = None):
+        if W is None:
+            W = T[:3, :3].astype(np.float32) @ pts.T + T[:3, 3:4].astype(np.float32)
+        if range_filter:
+            return finite_in_range(W, T[:3, 3], sensor.cfg.min_range, sensor.cfg.max_range)
+        return np.isfinite(W).all(axis=0)
+
+    @staticmethod
+    def _known_mask(sf: SelfFilter, pts: np.ndarray, q, now, then, cells: np.ndarray | None = None) -> np.ndarray:
+        """Keep mask: neither the robot nor a known object, as the scene is now and as it was at the stamp.
+
+        cells: the points' grid cells when the points are those cells' centres."""
+        keep = sf.keep_mask(pts, q, now, cells)
         if then.version != now.version and keep.any():
-            keep[keep] = sf.keep_mask(pts[keep], q, then)
+            keep[keep] = sf.keep_mask(pts[keep], q, then, None if cells is None else cells[keep])
         return keep
 
     def _shadow(self, surface: np.ndarray, origin: np.ndarray, q, snapshot, then) -> np.ndarray:
@@ -329,19 +373,15 @@ class Perception:
         depth = self.cfg.occupancy.shadow_depth
         if depth <= 0 or not len(surface):
             return np.zeros(0, dtype=np.int64)
-        res = self.cfg.resolution
-        c = self.grid.centers(surface)
-        d = c - origin
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        steps = np.arange(1, int(round(depth / res)) + 1) * res
-        pts = (c[:, None, :] + steps[None, :, None] * d[:, None, :]).reshape(-1, 3)
-        inside = np.all((pts >= self.grid.lo) & (pts <= self.grid.hi), axis=1)
-        pts = pts[inside]
-        if not len(pts):
-            return np.zeros(0, dtype=np.int64)
-        flat = self.grid.unique(self.grid.flat(pts))
+        g = self.grid
+        flat = shadow_cells(
+            g.keys(surface), np.asarray(origin, dtype=np.float64), g.resolution, int(round(depth / g.resolution)),
+            g.lo, g.hi, g.key_lo, int(g.strides[0]), int(g.strides[1]), g.scratch,
+        )  # fmt: skip
+        if not len(flat):
+            return flat
         if self._shadow_filter is not None:  # a shadow never covers the robot or known objects
-            flat = flat[self._known_mask(self._shadow_filter, self.grid.centers(flat), q, snapshot, then)]
+            flat = flat[self._known_mask(self._shadow_filter, self.grid.centers(flat), q, snapshot, then, flat)]
         return flat
 
     def _outlier_mask(self, voxels: np.ndarray) -> np.ndarray:
@@ -365,7 +405,7 @@ class Perception:
                 depth = np.where(np.isfinite(pts[:, 2]), pts[:, 2], np.nan).reshape(cam.height, cam.width)
             else:
                 depth = cam.render_depth(pts[ok])
-        cand = active[~np.isin(active, hits, assume_unique=True)] if len(hits) else active
+        cand = active[~in_sorted(active, hits)] if len(hits) else active
         centers = self.grid.centers(cand)
         pc = (centers - T[:3, 3]) @ T[:3, :3]  # base → optical frame
         u, v, inside = cam.project(pc)
@@ -378,7 +418,17 @@ class Perception:
         return cand[idx[through]]
 
     def _publish(self, stamp: float) -> None:
-        keys = self.grid.keys(self.map.active)
-        self.world.set_occupancy(
-            OccupancyMap(keys, self.cfg.resolution, broadphase_cell=self._broadphase_cell, stamp=stamp, trusted=True)
+        active, before = self.map.active, self._published
+        new = active[~in_sorted(active, before)]
+        self._serial += 1
+        occ = OccupancyMap(
+            self.grid.keys(active),
+            self.cfg.resolution,
+            broadphase_cell=self._broadphase_cell,
+            stamp=stamp,
+            trusted=True,
+            serial=self._serial,
+            added=self.grid.keys(new),
         )
+        self._published = active
+        self.world.set_occupancy(occ)

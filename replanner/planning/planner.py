@@ -134,15 +134,18 @@ def _seed_ompl(seed: int) -> None:
         ou.setLogLevel(level)
 
 
-class _Countdown:
-    """An attempt's termination condition: true after the planner's `attempt_iterations` evaluations."""
+class _Attempt:
+    """One attempt's budget of validity checks; when it is spent, or the plan is canceled, its termination condition
+    is set from the checks themselves (OMPL's own condition, not a Python one: multi-threaded planners such as PRM
+    evaluate conditions on threads of their own)."""
 
-    def __init__(self, planner: Planner):
-        self.left = planner.attempt_iterations
+    def __init__(self, ptc, checks: int, cancel: threading.Event | None):
+        self.ptc, self.left, self.cancel = ptc, checks, cancel
 
-    def __call__(self) -> bool:
+    def count(self) -> None:
         self.left -= 1
-        return self.left < 0
+        if self.left == 0 or (self.cancel is not None and self.cancel.is_set()):
+            self.ptc.terminate()
 
 
 class _BatchMotionValidator(ob.MotionValidator):
@@ -154,7 +157,11 @@ class _BatchMotionValidator(ob.MotionValidator):
 
     def checkMotion(self, s1, s2) -> bool:
         p = self._planner()
-        return p is not None and p.checker.path_valid(np.array([p._to_np(s1), p._to_np(s2)]), p._search_resolution)
+        if p is None:
+            return False
+        if p._attempt is not None:
+            p._attempt.count()
+        return p.checker.path_valid(np.array([p._to_np(s1), p._to_np(s2)]), p._search_resolution)
 
 
 _LIVE: weakref.WeakSet = weakref.WeakSet()
@@ -173,8 +180,8 @@ class Planner:
     Args:
         checker: validity of states and motions.
         planner: default OMPL planner name (see PLANNERS).
-        attempt_iterations: planner iterations per attempt before retrying with fresh random state (a count: with
-            time enough, a seeded plan is the same on any machine; the deadline may still cut it short).
+        attempt_checks: validity checks (states and motions) per attempt before retrying with fresh random state (a
+            count: with time enough, a seeded plan is the same on any machine; the deadline may still cut it short).
         shortcut_tries: random shortcuts tried after the search (at most; six misses in a row end it sooner).
         planner_range: planner step [rad]; None keeps OMPL's default.
         search_coarseness: motions are checked this many times coarser while searching (the result is then
@@ -189,7 +196,7 @@ class Planner:
         checker: CollisionChecker,
         *,
         planner: str = "RRTConnect",
-        attempt_iterations: int = 200,
+        attempt_checks: int = 1000,
         shortcut_tries: int = 10,
         planner_range: float | None = None,
         ik_restarts: int = 16,
@@ -202,9 +209,10 @@ class Planner:
         self.robot = checker.robot
         planner_class(planner)  # raises on an unknown name
         self.default_planner = planner
-        if attempt_iterations < 1 or shortcut_tries < 0:
-            raise InvalidInputError("attempt_iterations must be >= 1 and shortcut_tries >= 0")
-        self.attempt_iterations = int(attempt_iterations)
+        if attempt_checks < 1 or shortcut_tries < 0:
+            raise InvalidInputError("attempt_checks must be >= 1 and shortcut_tries >= 0")
+        self.attempt_checks = int(attempt_checks)
+        self._attempt: _Attempt | None = None
         self.shortcut_tries = int(shortcut_tries)
         self.planner_range = planner_range
         self.ik_restarts = ik_restarts
@@ -227,7 +235,11 @@ class Planner:
 
         def state_valid(s) -> bool:
             p = ref()
-            return p is not None and p.checker.is_valid(p._to_np(s))
+            if p is None:
+                return False
+            if p._attempt is not None:
+                p._attempt.count()
+            return p.checker.is_valid(p._to_np(s))
 
         self.si.setStateValidityChecker(state_valid)
         self._mv = _BatchMotionValidator(self.si, self)
@@ -240,7 +252,7 @@ class Planner:
         return cls(
             checker,
             planner=cfg.planner,
-            attempt_iterations=cfg.attempt_iterations,
+            attempt_checks=cfg.attempt_checks,
             shortcut_tries=cfg.shortcut_tries,
             planner_range=cfg.range,
             ik_restarts=cfg.ik_restarts,
@@ -342,14 +354,14 @@ class Planner:
                 break
             attempts += 1
             ptc = ob.plannerOrTerminationCondition(
-                ob.plannerOrTerminationCondition(
-                    ob.exactSolnPlannerTerminationCondition(pdef), ob.PlannerTerminationCondition(_Countdown(self))
-                ),
+                ob.exactSolnPlannerTerminationCondition(pdef),
                 ob.timedPlannerTerminationCondition(remaining),  # the deadline, the only clock in a plan
             )
-            if cancel is not None:
-                ptc = ob.plannerOrTerminationCondition(ptc, ob.PlannerTerminationCondition(cancel.is_set))
-            status = ss.solve(ptc)
+            self._attempt = _Attempt(ptc, self.attempt_checks, cancel)
+            try:
+                status = ss.solve(ptc)
+            finally:
+                self._attempt = None
             found = bool(status) and pdef.hasExactSolution()
             if found and not self.checker.path_valid(self._solution(ss)):
                 found = False  # a thin obstacle slipped between the coarse search checks: search finely

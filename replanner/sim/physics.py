@@ -177,6 +177,7 @@ class PhysicsSim:
 
     # ------------------------------------------------------------------ the loop
     def _loop(self) -> None:
+        self._rtf_mark: tuple[float, int] | None = None
         dt = 1.0 / self.sc.physics_hz
         t0 = time.time()
         k = 0
@@ -210,12 +211,18 @@ class PhysicsSim:
             self._publish_bodies(t)
         if k % every["report"] == 0:
             w = self._window
+            # real-time factor: physics seconds stepped per wall second (a busy machine drops steps)
+            wall, steps = time.time(), self.steps
+            mark_wall, mark_steps = self._rtf_mark or (wall, steps)
+            rtf = (steps - mark_steps) / self.sc.physics_hz / (wall - mark_wall) if wall > mark_wall else None
+            self._rtf_mark = (wall, steps)
             self.event(
                 "clearance",
                 t,
                 clearance=None if w == math.inf else round(w, 4),
                 operator=self.operator.present,
                 on_path=self.truth.on_path,
+                rtf=None if rtf is None else round(rtf, 3),
             )
             self._window = math.inf
         self.steps += 1

@@ -57,4 +57,5 @@ KEYS = {
     "clouds": "clouds/*",
     "alive": "alive",
     "rejections": "rejections",
+    "latency": "latency",
 }

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 from typing import NamedTuple
 
@@ -24,6 +24,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from .collision_scene import OCTREE, CollisionScene, ThreadObjects
 from .geometry import Shape
+from .kernels import body_boxes
 from .robot import RobotModel
 from .scene import World, WorldSnapshot
 
@@ -183,8 +184,12 @@ class CollisionChecker:
                     self._scene = scene
         return scene
 
-    def _current(self) -> tuple[WorldSnapshot, CollisionScene, ThreadObjects, fcl.CollisionObject | None]:
+    def _current(
+        self, occupancy=None
+    ) -> tuple[WorldSnapshot, CollisionScene, ThreadObjects, fcl.CollisionObject | None]:
         snap = self.world.snapshot()
+        if occupancy is not None:  # another map than the world's (e.g. only what is new in the world's)
+            snap = replace(snap, occupancy=occupancy)
         scene = self._scene_of(snap)
         objs = getattr(self._local, "objs", None)
         if objs is None or objs.scene is not scene:
@@ -196,7 +201,8 @@ class CollisionChecker:
             cached = self._octree_obj
             if cached is None or cached[0] is not occ:
                 cached = (occ, fcl.CollisionObject(occ.tree, fcl.Transform()))
-                self._octree_obj = cached
+                if occupancy is None:  # the world's map is the one asked for again and again
+                    self._octree_obj = cached
             octree = cached[1]
         return snap, scene, objs, octree
 
@@ -207,16 +213,19 @@ class CollisionChecker:
 
     @staticmethod
     def _aabbs(T: np.ndarray, c: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World-aligned boxes (N, K, B, 3) of local boxes at body poses T (N, B, 4, 4).
+        """World-aligned boxes (N, K, B, 3) of local boxes (centres c, half extents h: (K, B, 3)) at body poses
+        T (N, B, 4, 4)."""
+        lo = np.empty((len(T),) + c.shape)
+        hi = np.empty_like(lo)
+        body_boxes(np.ascontiguousarray(T), c, h, lo, hi)
+        return lo, hi
 
-        c: homogeneous local centres (K, B, 4, 1); h: local half extents (K, B, 3, 1).
-        """
-        center = (T[:, None] @ c)[..., :3, 0]
-        half = (np.abs(T[:, None, :, :3, :3]) @ h)[..., 0]
-        return center - half, center + half
+    def _candidates(
+        self, snap, scene: CollisionScene, Q: np.ndarray, T: np.ndarray, octree_only: bool = False, robot_pairs=True
+    ):
+        """Boolean masks of pairs the narrowphase must test: octree (N, B), objects (N, B, O), self (N, P).
 
-    def _candidates(self, snap, scene: CollisionScene, Q: np.ndarray, T: np.ndarray, octree_only: bool = False):
-        """Boolean masks of pairs the narrowphase must test: octree (N, B), objects (N, B, O), self (N, P)."""
+        robot_pairs: False leaves out the robot's own link pairs (attachments against links stay in)."""
         lo, hi = self._aabbs(T, scene.box_c, scene.box_h)
         elo, ehi = lo[:, 0], hi[:, 0]
         occ = snap.occupancy
@@ -236,15 +245,16 @@ class CollisionChecker:
         else:
             cand_obj = np.zeros(elo.shape[:2] + (0,), dtype=bool)
         cand_self = np.zeros((len(T), len(scene.pair_a)), dtype=bool)
-        if len(scene.table_cols):
+        if len(scene.table_cols) and robot_pairs:
             cand_self[:, scene.table_cols] = scene.tables.may_collide(Q)
-        if len(scene.box_cols):
+        k = 0 if robot_pairs else scene.first_attached_box  # box columns of attachments come last
+        if len(scene.box_cols) > k:
             slo, shi = lo[:, 1], hi[:, 1]
-            a, b = scene.box_a, scene.box_b
+            a, b = scene.box_a[k:], scene.box_b[k:]
             overlap = (slo[:, a, 0] <= shi[:, b, 0]) & (shi[:, a, 0] >= slo[:, b, 0])
             for ax in (1, 2):
                 overlap &= (slo[:, a, ax] <= shi[:, b, ax]) & (shi[:, a, ax] >= slo[:, b, ax])
-            cand_self[:, scene.box_cols] = overlap
+            cand_self[:, scene.box_cols[k:]] = overlap
         return cand_oct, cand_obj, cand_self
 
     # ------------------------------------------------------------------ narrowphase
@@ -295,13 +305,20 @@ class CollisionChecker:
         return Contact(ContactKind.LIMITS, self.robot.joint_names[bad[0]], "") if len(bad) else None
 
     def _first_invalid(
-        self, Q: np.ndarray, stop_at_first: bool, octree_only: bool = False, locate: bool = False
+        self,
+        Q: np.ndarray,
+        stop_at_first: bool,
+        octree_only: bool = False,
+        locate: bool = False,
+        occupancy=None,
+        robot_pairs: bool = True,
     ) -> tuple[np.ndarray, list[Contact | None]]:
         """Validity (N,) of configurations Q (N, dof); contacts of the invalid ones (None where valid).
 
         octree_only: test the occupancy map alone (for paths already checked against everything else).
+        occupancy: that map instead of the world's. robot_pairs: False skips the robot's own link pairs.
         """
-        snap, scene, objs, octree = self._current()
+        snap, scene, objs, octree = self._current(occupancy)
         N = len(Q)
         valid = np.ones(N, dtype=bool)
         contacts: list[Contact | None] = [None] * N
@@ -309,7 +326,7 @@ class CollisionChecker:
             lim = self.robot.limits
             valid &= ((Q >= lim.lower - 1e-9) & (Q <= lim.upper + 1e-9)).all(axis=1)
         T = self._body_poses(scene, Q)
-        cand_oct, cand_obj, cand_self = self._candidates(snap, scene, Q, T, octree_only)
+        cand_oct, cand_obj, cand_self = self._candidates(snap, scene, Q, T, octree_only, robot_pairs)
         # the narrowphase work per configuration, as plain lists: no numpy call per pair
         tests: dict[int, list] = {}
         for n, b in np.argwhere(cand_oct).tolist():
@@ -430,33 +447,47 @@ class CollisionChecker:
         dW = np.diff(W, axis=0)
         steps = np.maximum(1, np.ceil(np.abs(dW) @ scene.reach / res).astype(np.int64))
         seg = np.repeat(np.arange(len(dW)), steps)
-        frac = np.concatenate([np.arange(s) / s for s in steps])
+        frac = (np.arange(len(seg)) - np.repeat(np.cumsum(steps) - steps, steps)) / steps[seg]
         Q = W[seg] + frac[:, None] * dW[seg]
         Q = np.vstack([Q, W[-1:]])
         pos = np.concatenate([seg + frac, [len(dW)]])
         return Q, pos
 
-    def path_valid(self, waypoints, resolution: float | None = None, octree_only: bool = False) -> bool:
+    def path_valid(
+        self,
+        waypoints,
+        resolution: float | None = None,
+        octree_only: bool = False,
+        occupancy=None,
+        robot_pairs: bool = True,
+    ) -> bool:
         """True if the joint-space segments between waypoints are valid; cheaper than `check_path` when invalid.
 
         Tests every 8th interpolated configuration first, so a collision is usually found early.
         octree_only: test against the occupancy map alone (the monitor's case: the rest was checked at planning).
+        occupancy: test against this map instead of the world's (with octree_only: e.g. what a new map added).
+        robot_pairs: False skips the robot's own link pairs (a path's self-collision never changes with the scene).
         """
         Q, _ = self.interpolate(waypoints, resolution)
         stride = 8
-        if not self._first_invalid(Q[::stride], True, octree_only)[0].all():
+        kw = dict(octree_only=octree_only, occupancy=occupancy, robot_pairs=robot_pairs)
+        if not self._first_invalid(Q[::stride], True, **kw)[0].all():
             return False
         rest = np.delete(Q, np.arange(0, len(Q), stride), axis=0)
         for start in range(0, len(rest), 512):
-            if not self._first_invalid(rest[start : start + 512], True, octree_only)[0].all():
+            if not self._first_invalid(rest[start : start + 512], True, **kw)[0].all():
                 return False
         return True
 
-    def check_path(self, waypoints, resolution: float | None = None, chunk: int = 128) -> PathCheck:
-        """Check straight joint-space segments between waypoints; report the first colliding configuration."""
+    def check_path(
+        self, waypoints, resolution: float | None = None, chunk: int = 128, robot_pairs: bool = True
+    ) -> PathCheck:
+        """Check straight joint-space segments between waypoints; report the first colliding configuration.
+
+        robot_pairs: False skips the robot's own link pairs (for paths whose self-collision was checked)."""
         Q, pos = self.interpolate(waypoints, resolution)
         for start in range(0, len(Q), chunk):
-            valid, contacts = self._first_invalid(Q[start : start + chunk], True, locate=True)
+            valid, contacts = self._first_invalid(Q[start : start + chunk], True, locate=True, robot_pairs=robot_pairs)
             bad = np.flatnonzero(~valid)
             if len(bad):
                 i = start + int(bad[0])

@@ -13,6 +13,7 @@ import fcl
 import numpy as np
 
 from .geometry import Shape, bounding_radius, padded_geometry
+from .kernels import body_poses
 from .robot import RobotModel
 from .scene import WorldSnapshot
 
@@ -121,11 +122,10 @@ class CollisionScene:
         slots, offsets = zip(*(robot.frame_offset(b.link) for b in bodies))
         self.body_slot = np.array(slots, dtype=np.int64)
         self.body_off = np.stack([off @ b.T_link_body for off, b in zip(offsets, bodies)])  # T_frame_body
-        # local boxes, padded for the world [0], for self checks [1] and for the map [2]: (3, B, 3)
+        # local boxes (centres c, half extents h), padded for the world [0], self checks [1], the map [2]: (3, B, 3)
         c = np.stack([np.stack([getattr(b, k)[0] for b in bodies]) for k in ("env_box", "self_box", "map_box")])
         h = np.stack([np.stack([getattr(b, k)[1] for b in bodies]) for k in ("env_box", "self_box", "map_box")])
-        self.box_c = np.concatenate([c, np.ones(c.shape[:2] + (1,))], axis=-1)[..., None]  # homogeneous (3, B, 4, 1)
-        self.box_h = h[..., None]  # (3, B, 3, 1)
+        self.box_c, self.box_h = np.ascontiguousarray(c, dtype=np.float64), np.ascontiguousarray(h, dtype=np.float64)
         # bounding balls of the unpadded bodies: centre (B, 4, 1) homogeneous in the body frame, radius (B,)
         self.ball_c = np.stack([np.append(b.raw_box[0], 1.0) for b in bodies])[..., None]
         self.ball_r = np.array([ball_radius(b.raw_shape, b.raw_box[0]) for b in bodies])
@@ -158,6 +158,7 @@ class CollisionScene:
         # self pairs: the robot's own list plus attached objects against links they may not touch
         nr = len(robot.bodies)
         pairs = [tuple(p) for p in robot.self_collision_pairs]
+        self.n_robot_pairs = len(pairs)  # the robot's own pairs come first
         for ai in range(nr, B):
             a = bodies[ai]
             for ri in range(nr):
@@ -173,6 +174,7 @@ class CollisionScene:
         box[self.table_cols] = False
         self.box_cols = np.flatnonzero(box)
         self.box_a, self.box_b = self.pair_a[self.box_cols], self.pair_b[self.box_cols]
+        self.first_attached_box = int(np.searchsorted(self.box_cols, self.n_robot_pairs))
 
         # per-joint reach of the farthest body point, for path interpolation
         reach = np.zeros(robot.dof)
@@ -183,7 +185,8 @@ class CollisionScene:
 
     def body_poses(self, frames: np.ndarray) -> np.ndarray:
         """Body poses (N, B, 4, 4) from the robot's `frames` (N, 1 + dof, 4, 4)."""
-        return frames[:, self.body_slot] @ self.body_off
+        out = np.empty((len(frames), len(self.body_slot), 4, 4))
+        return body_poses(np.ascontiguousarray(frames), self.body_slot, self.body_off, out)
 
 
 class ThreadObjects:

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import InvalidInputError
+from .kernels import boxes_hit_table, count_cells, octree_stream
 
 _OCTOMAP_HEADER_END = b"data\n"
 
@@ -54,21 +55,9 @@ def octomap_binary(keys: np.ndarray) -> bytes:
     if not len(k):
         raise InvalidInputError("an empty map has no tree: fcl would read a childless root as one occupied voxel")
     codes = _spread_bits(k[:, 0]) | (_spread_bits(k[:, 1]) << np.uint64(1)) | (_spread_bits(k[:, 2]) << np.uint64(2))
-    codes = np.unique(codes)
-    lefts, levels, bits = [], [], []
-    for level in range(_TREE_DEPTH):
-        child = codes >> np.uint64(3 * (_TREE_DEPTH - 1 - level))  # nodes one level below, with repeats
-        if level < _TREE_DEPTH - 1:
-            child = child[np.r_[True, child[1:] != child[:-1]]]
-        parent = child >> np.uint64(3)
-        digit = (child & np.uint64(7)).astype(np.int64)
-        kind = 3 if level < _TREE_DEPTH - 1 else 2  # inner node, or occupied leaf at the bottom
-        starts = np.flatnonzero(np.r_[True, parent[1:] != parent[:-1]])
-        bits.append(np.add.reduceat(kind << (2 * digit), starts))
-        lefts.append(parent[starts] << np.uint64(3 * (_TREE_DEPTH - level)))
-        levels.append(np.full(len(starts), level, dtype=np.int64))
-    order = np.lexsort((np.concatenate(levels), np.concatenate(lefts)))  # parents before their subtrees
-    return np.concatenate(bits)[order].astype("<u2").tobytes()
+    codes = np.sort(codes)
+    codes = codes[np.r_[True, codes[1:] != codes[:-1]]]
+    return octree_stream(codes, _TREE_DEPTH).astype("<u2").tobytes()
 
 
 def build_fcl_octree(keys: np.ndarray, resolution: float) -> fcl.OcTree:
@@ -90,6 +79,8 @@ class OccupancyMap:
         resolution: voxel edge [m].
         broadphase_cell: edge [m] of the coarse count grid used to skip links far from any voxel.
         stamp: time [s] the map describes (e.g. the newest cloud's timestamp).
+        serial: the map's number in a stream of maps; added: the voxels (K, 3) it has that map serial - 1 had not
+            (a path clear of that map is clear of this one if it is clear of these).
     """
 
     def __init__(
@@ -100,6 +91,8 @@ class OccupancyMap:
         broadphase_cell: float = 0.04,
         stamp: float | None = None,
         trusted: bool = False,
+        serial: int = 0,
+        added: np.ndarray | None = None,
     ):
         if not (resolution > 0 and np.isfinite(resolution)):
             raise InvalidInputError(f"resolution must be > 0 [m], got {resolution}")
@@ -114,10 +107,28 @@ class OccupancyMap:
         self.stamp = time.time() if stamp is None else float(stamp)
         self.centers = voxel_centers(k, resolution)
         self.centers.setflags(write=False)
-        # no tree for an empty map: fcl would read a childless root as one huge occupied voxel
-        self.tree = build_fcl_octree(k, self.resolution) if len(k) else None
+        self._tree: fcl.OcTree | None = None
         # whole voxels per cell, so each voxel box lies inside exactly one cell
-        self._build_broadphase(self.resolution * max(1, round(float(broadphase_cell) / self.resolution)))
+        self._broadphase_cell = float(broadphase_cell)
+        self._broadphase_ready = False  # built on the first any_in_boxes: a map nobody checks never needs it
+        # which map this one follows (serial - 1) and the voxels it has that one had not: what can newly block
+        self.serial = int(serial)
+        self.added = None if added is None else np.asarray(added, dtype=np.int64).reshape(-1, 3)
+
+    @property
+    def tree(self) -> fcl.OcTree | None:
+        """The voxels' fcl.OcTree, built on first use (a check of only the added voxels never needs it)."""
+        # no tree for an empty map: fcl would read a childless root as one huge occupied voxel
+        if self._tree is None and len(self.keys):
+            self._tree = build_fcl_octree(self.keys, self.resolution)  # two racing builds make equal trees
+        return self._tree
+
+    @cached_property
+    def added_map(self) -> OccupancyMap | None:
+        """A map of only the voxels this one added to the one before it (None if it says nothing about that)."""
+        if self.added is None:
+            return None
+        return OccupancyMap(self.added, self.resolution, broadphase_cell=self._broadphase_cell, trusted=True)
 
     @classmethod
     def from_points(cls, points: np.ndarray, resolution: float, **kw) -> OccupancyMap:
@@ -139,32 +150,17 @@ class OccupancyMap:
     def __len__(self) -> int:
         return len(self.keys)
 
-    def _build_broadphase(self, cell: float) -> None:
-        self._cell = cell
-        lo = self.centers.min(axis=0) if len(self.keys) else np.zeros(3)
-        idx = np.floor((self.centers - lo) / cell).astype(np.int64)
-        shape = idx.max(axis=0) + 1 if len(self.keys) else np.ones(3, np.int64)
-        grid = np.bincount((idx @ np.array([shape[1] * shape[2], shape[2], 1])), minlength=int(np.prod(shape)))
-        grid = grid.reshape(tuple(shape)).astype(np.int32)
+    def _build_broadphase(self) -> None:
+        ratio = max(1, round(self._broadphase_cell / self.resolution))  # whole voxels per cell
+        key_min = self.keys.min(axis=0)
+        shape = (self.keys.max(axis=0) - key_min) // ratio + 1
+        grid = count_cells(self.keys, key_min, ratio, shape)
         sat = np.zeros(tuple(shape + 1), dtype=np.int32)  # summed-volume table with a zero slab in front
         sat[1:, 1:, 1:] = grid.cumsum(0).cumsum(1).cumsum(2)
-        self._origin = lo - self.resolution / 2  # voxel boxes, not centres, must fall inside a cell
+        self._origin = key_min * self.resolution  # the lower corner of the first voxel: boxes fall inside a cell
         self._n = shape
         self._sat = sat.ravel()
-        strides = np.array([sat.shape[1] * sat.shape[2], sat.shape[2], 1], dtype=np.int64)
-        # corner (i, j, k), i/j/k = 0 for the low side, 1 for the high side: index = sum of the chosen columns
-        M = np.zeros((6, 8), dtype=np.int64)
-        signs = np.zeros(8, dtype=np.int64)
-        for c in range(8):
-            ijk = ((c >> 2) & 1, (c >> 1) & 1, c & 1)
-            for axis, side in enumerate(ijk):
-                M[3 * side + axis, c] = strides[axis]
-            signs[c] = (-1) ** (sum(ijk) + 1)
-        self._corner_matrix, self._corner_sign = M, signs
-        self._origin6 = np.concatenate([self._origin, self._origin])
-        self._shift6 = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
-        self._n6 = np.concatenate([self._n, self._n]).astype(np.float64)
-        self._inv_cell = 1.0 / cell
+        self._inv_cell = 1.0 / (ratio * self.resolution)
 
     def any_in_boxes(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """For axis-aligned boxes [lo, hi] (..., 3) [m]: True where an occupied voxel may overlap.
@@ -173,11 +169,22 @@ class OccupancyMap:
         """
         if not len(self.keys):
             return np.zeros(np.shape(lo)[:-1], dtype=bool)
-        # cells [a, b] overlap the box; in table coordinates that is the half-open range [a, b + 1)
-        ab = np.floor((np.concatenate((lo, hi), axis=-1) - self._origin6) * self._inv_cell) + self._shift6
-        corners = ab.clip(0, self._n6).astype(np.int64) @ self._corner_matrix  # flat indices of the 8 corners
-        count = self._sat[corners] @ self._corner_sign
-        return count > 0
+        if not self._broadphase_ready:  # two racing builds write equal tables
+            self._build_broadphase()
+            self._broadphase_ready = True
+        lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+        shape = lo.shape[:-1]
+        out = np.empty(int(np.prod(shape)), dtype=bool)
+        boxes_hit_table(
+            np.ascontiguousarray(lo.reshape(-1, 3)),
+            np.ascontiguousarray(hi.reshape(-1, 3)),
+            self._origin,
+            self._inv_cell,
+            self._n,
+            self._sat,
+            out,
+        )
+        return out.reshape(shape)
 
     def __repr__(self) -> str:
         return f"OccupancyMap(voxels={len(self)}, resolution={self.resolution})"

@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import InvalidInputError, RobotModelError, UnknownNameError
 from ..sections import RobotConfig
+from .kernels import chain_frames, warm_up
 from .selfcollision import SelfClearanceTables, default_cache_dir
 from .urdf import CollisionBody, collision_bodies, load_urdf
 
@@ -222,9 +223,7 @@ class RobotModel:
         self._chain_len = chain_len  # [j, k]: upper bound on the distance from joint j's origin to frame k's
         for arr in (F, parent, prismatic, link_frame, link_offset, anc, chain_len):
             arr.setflags(write=False)
-        self._Fcols = tuple(np.ascontiguousarray(F[..., i]) for i in range(4))
-        self._any_prismatic = bool(prismatic.any())
-        self._chain = [(int(j), int(parent[j]) + 1) for j in self._joint_order]
+        self._chain_parents = np.ascontiguousarray(parent[self._joint_order] + 1, dtype=np.int64)
 
         lower, upper = zip(*(_urdf_limits(joint_by_name[n]) for n in self.joint_names)) if self.dof else ((), ())
         try:
@@ -254,6 +253,7 @@ class RobotModel:
         self.self_body_padding = self.self_padding / 2  # per body, so a pair keeps self_padding apart
         self.self_collision_pairs = self._self_pairs(order, allowed_self_pairs)
         self._self_tables: SelfClearanceTables | None = None
+        warm_up()  # the collision kernels compile now, not in the first check of a running motion
 
     @classmethod
     def from_config(cls, cfg: RobotConfig) -> RobotModel:
@@ -349,27 +349,9 @@ class RobotModel:
     def frames(self, Q: np.ndarray) -> np.ndarray:
         """Frames (N, 1 + dof, 4, 4) in the base frame for Q (N, dof): slot 0 is the base, slot 1 + j joint j's
         internal frame (z = its axis). Unchecked fast path; see `fk` for the checked public one."""
-        N = len(Q)
-        F0, F1, F2, F3 = self._Fcols
-        if self._any_prismatic:
-            pri = self._prismatic
-            c = np.where(pri, 1.0, np.cos(Q))[..., None]
-            s = np.where(pri, 0.0, np.sin(Q))[..., None]
-        else:
-            c = np.cos(Q)[..., None]
-            s = np.sin(Q)[..., None]
-        local = np.empty((N, self.dof, 4, 4))
-        local[..., 0] = F0 * c + F1 * s
-        local[..., 1] = F1 * c - F0 * s
-        local[..., 2] = F2
-        local[..., 3] = F3
-        if self._any_prismatic:
-            local[..., 3] += F2 * np.where(self._prismatic, Q, 0.0)[..., None]
-        out = np.empty((N, self.dof + 1, 4, 4))
-        out[:, 0] = np.eye(4)
-        for j, p in self._chain:
-            np.matmul(out[:, p], local[:, j], out=out[:, j + 1])
-        return out
+        Q = np.ascontiguousarray(Q, dtype=np.float64)
+        out = np.empty((len(Q), self.dof + 1, 4, 4))
+        return chain_frames(Q, self._F, self._prismatic, self._joint_order, self._chain_parents, out)
 
     def joint_frames(self, q) -> np.ndarray:
         """Internal active-joint frames (..., dof, 4, 4) in the base frame; z is each joint's axis."""

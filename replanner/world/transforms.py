@@ -9,11 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import InvalidInputError
 
-try:  # scipy >= 1.16 projects every matrix onto SO(3) with an SVD (10x slower) unless told it is a rotation
-    Rotation.from_matrix(np.eye(3), assume_valid=True)
-    _AS_ROTATION = {"assume_valid": True}
-except TypeError:  # older scipy has no such option and does not project
-    _AS_ROTATION = {}
+_AS_ROTATION = {"assume_valid": True}  # else scipy projects every matrix onto SO(3) with an SVD (10x slower)
 
 
 def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:

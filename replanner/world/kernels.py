@@ -1,0 +1,166 @@
+"""Compiled loops of the collision hot path (numba): forward kinematics, body poses and boxes, and the map's
+broadphase for every configuration of a path at once, where numpy's batched 4x4 products are mostly overhead.
+
+Compiled once per machine and cached (numba's cache: next to this file, or in $NUMBA_CACHE_DIR).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True)
+def chain_frames(Q, F, prismatic, joints, parents, out):
+    """Frames out (N, 1 + dof, 4, 4) of a joint chain: out[:, 0] = I, out[:, 1 + j] = out[:, p] @ local_j(q_j).
+
+    F (dof, 4, 4): joint j's frame at q = 0 in its parent's, z its axis; a revolute joint turns about z, a
+    prismatic one slides along it. joints, parents: joint j and its parent's slot p (0: the base), parents first.
+    """
+    L = np.empty((4, 4))
+    for n in range(Q.shape[0]):
+        for r in range(4):
+            for c in range(4):
+                out[n, 0, r, c] = 1.0 if r == c else 0.0
+        for k in range(joints.shape[0]):
+            j, p = joints[k], parents[k]
+            q = Q[n, j]
+            cq, sq, d = (1.0, 0.0, q) if prismatic[j] else (np.cos(q), np.sin(q), 0.0)
+            for r in range(4):
+                L[r, 0] = F[j, r, 0] * cq + F[j, r, 1] * sq
+                L[r, 1] = F[j, r, 1] * cq - F[j, r, 0] * sq
+                L[r, 2] = F[j, r, 2]
+                L[r, 3] = F[j, r, 3] + F[j, r, 2] * d
+            for r in range(4):
+                a0, a1, a2, a3 = out[n, p, r, 0], out[n, p, r, 1], out[n, p, r, 2], out[n, p, r, 3]
+                for c in range(4):
+                    out[n, j + 1, r, c] = a0 * L[0, c] + a1 * L[1, c] + a2 * L[2, c] + a3 * L[3, c]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def body_poses(frames, slot, off, out):
+    """out[n, b] = frames[n, slot[b]] @ off[b]: poses (N, B, 4, 4) of bodies fixed in the chain's frames."""
+    for n in range(frames.shape[0]):
+        for b in range(slot.shape[0]):
+            s = slot[b]
+            for r in range(4):
+                a0, a1, a2, a3 = frames[n, s, r, 0], frames[n, s, r, 1], frames[n, s, r, 2], frames[n, s, r, 3]
+                for c in range(4):
+                    out[n, b, r, c] = a0 * off[b, 0, c] + a1 * off[b, 1, c] + a2 * off[b, 2, c] + a3 * off[b, 3, c]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def body_boxes(T, center, half, lo, hi):
+    """World-aligned boxes lo, hi (N, K, B, 3) around local boxes (centre (K, B, 3), half extent (K, B, 3)) of
+    bodies at poses T (N, B, 4, 4)."""
+    for n in range(T.shape[0]):
+        for k in range(center.shape[0]):
+            for b in range(center.shape[1]):
+                for r in range(3):
+                    m = T[n, b, r, 3]
+                    e = 0.0
+                    for c in range(3):
+                        m += T[n, b, r, c] * center[k, b, c]
+                        e += abs(T[n, b, r, c]) * half[k, b, c]
+                    lo[n, k, b, r] = m - e
+                    hi[n, k, b, r] = m + e
+
+
+@numba.njit(cache=True, nogil=True)
+def boxes_hit_table(lo, hi, origin, inv_cell, n, sat, out):
+    """out[i] = the summed-volume table `sat` ((n + 1) cells a side, flat) counts an occupied voxel in a cell
+    that box [lo[i], hi[i]] (M, 3) overlaps; `origin` is the table's corner, cells 1 / inv_cell a side."""
+    s1, s2 = n[2] + 1, (n[1] + 1) * (n[2] + 1)
+    for i in range(lo.shape[0]):
+        # cells [a, b] overlap the box; in table coordinates that is the half-open range [a, b + 1)
+        a0, a1, a2 = (
+            _cell(lo[i, 0], origin[0], inv_cell, 0.0, n[0]),
+            _cell(lo[i, 1], origin[1], inv_cell, 0.0, n[1]),
+            _cell(lo[i, 2], origin[2], inv_cell, 0.0, n[2]),
+        )
+        b0, b1, b2 = (
+            _cell(hi[i, 0], origin[0], inv_cell, 1.0, n[0]),
+            _cell(hi[i, 1], origin[1], inv_cell, 1.0, n[1]),
+            _cell(hi[i, 2], origin[2], inv_cell, 1.0, n[2]),
+        )
+        count = (
+            sat[b0 * s2 + b1 * s1 + b2]
+            - sat[a0 * s2 + b1 * s1 + b2]
+            - sat[b0 * s2 + a1 * s1 + b2]
+            - sat[b0 * s2 + b1 * s1 + a2]
+            + sat[a0 * s2 + a1 * s1 + b2]
+            + sat[a0 * s2 + b1 * s1 + a2]
+            + sat[b0 * s2 + a1 * s1 + a2]
+            - sat[a0 * s2 + a1 * s1 + a2]
+        )
+        out[i] = count > 0
+    return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cell(x, origin, inv_cell, shift, n):
+    """Table index of coordinate x: its cell + shift, clipped to [0, n]."""
+    return np.int64(min(max(np.floor((x - origin) * inv_cell) + shift, 0.0), np.float64(n)))
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every kernel now: a first compile takes seconds, too long mid-check."""
+    eye = np.eye(4)[None, None].copy()
+    frames = np.repeat(eye, 2, axis=1)
+    F, prismatic = np.eye(4)[None].copy(), np.zeros(1, bool)
+    F.setflags(write=False)  # as a robot model holds them
+    prismatic.setflags(write=False)
+    chain_frames(np.zeros((1, 1)), F, prismatic, np.zeros(1, np.int64), np.zeros(1, np.int64), np.empty((1, 2, 4, 4)))
+    body_poses(frames, np.zeros(1, np.int64), np.eye(4)[None].copy(), np.empty((1, 1, 4, 4)))
+    box = np.zeros((1, 1, 3))
+    body_boxes(eye, box, box, np.empty((1, 1, 1, 3)), np.empty((1, 1, 1, 3)))
+    boxes_hit_table(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(3), 1.0, np.ones(3, np.int64),
+                    np.zeros(8, np.int32), np.empty(1, bool))  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def octree_stream(codes, depth):
+    """OctoMap's binary node stream (uint16 per inner node, pre-order) of the leaves with sorted, unique Morton
+    codes `codes` (3 bits per level, the root's digit highest) in a tree `depth` levels deep.
+
+    Sorted codes meet the nodes in pre-order: each code opens new nodes below the level where it first differs
+    from the code before; a node's record is reserved when it opens and its child bits are filled as they come.
+    """
+    out = np.zeros(codes.shape[0] * depth + 1, np.uint16)
+    slot = np.empty(depth + 1, np.int64)
+    slot[0] = 0
+    m = 1
+    prev = np.uint64(0)
+    for i in range(codes.shape[0]):
+        c = codes[i]
+        d = 0
+        if i > 0:
+            x = prev ^ c
+            while d < depth - 1 and (x >> np.uint64(3 * (depth - 1 - d))) == 0:
+                d += 1
+        for level in range(d, depth):
+            digit = np.int64((c >> np.uint64(3 * (depth - 1 - level))) & np.uint64(7))
+            if level < depth - 1:
+                out[slot[level]] |= np.uint16(3 << (2 * digit))  # 11: an inner child
+                slot[level + 1] = m
+                m += 1
+            else:
+                out[slot[level]] |= np.uint16(2 << (2 * digit))  # an occupied leaf
+        prev = c
+    return out[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def count_cells(keys, key_min, ratio, n):
+    """Voxels (keys (M, 3)) per coarse cell of `ratio` voxels a side from key_min: counts (n[0], n[1], n[2])."""
+    grid = np.zeros((n[0], n[1], n[2]), np.int32)
+    for i in range(keys.shape[0]):
+        grid[
+            (keys[i, 0] - key_min[0]) // ratio, (keys[i, 1] - key_min[1]) // ratio, (keys[i, 2] - key_min[2]) // ratio
+        ] += 1
+    return grid
+    octree_stream(np.zeros(1, np.uint64), 16)
+    keys = np.zeros((1, 3), np.int64)
+    count_cells(keys, keys[0], 1, np.ones(3, np.int64))
