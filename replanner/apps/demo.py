@@ -23,7 +23,7 @@ class Recording:
     truth: list[dict] = field(default_factory=list)
     transitions: list[dict] = field(default_factory=list)
     results: list[dict] = field(default_factory=list)
-    status: list[dict] = field(default_factory=list)  # {"stamp", "state", "map_voxels"}
+    status: list[dict] = field(default_factory=list)  # {"stamp", "state", "map_voxels"[, "latency"]}
     progress: list[dict] = field(default_factory=list)
 
 
@@ -56,6 +56,8 @@ class Recorder:
         try:
             msg = json.loads(sample.payload.to_bytes())
             item = {"stamp": msg["stamp"], "state": msg["state"], "map_voxels": msg.get("map_voxels", 0)}
+            if isinstance(msg.get("latency"), dict):
+                item["latency"] = msg["latency"]
         except (ValueError, KeyError, TypeError):
             return
         with self._lock:
@@ -149,6 +151,16 @@ def compute_metrics(rec: Recording, *, safety_distance: float, bins: tuple[str, 
         "reactions_missed": missed,
         "cycles_failed": sum(1 for p in rec.progress if p.get("step") == "failed"),
         "service_reaction_time_s": _stats([s["latency"]["reaction_time_s"] for s in status if s.get("latency")]),
+        "service_latency_p99_s": {
+            stage: _stats(
+                [
+                    s["latency"][stage]["p99"]
+                    for s in status
+                    if (s.get("latency") or {}).get(stage, {}).get("p99") is not None
+                ]
+            )
+            for stage in ("sensor_to_map", "map_to_check", "check_to_command", "reaction", "joint_state_age")
+        },
         "real_time_factor": _stats([e["rtf"] for e in kinds("clearance") if e.get("rtf") is not None]),
         "replan_s": _stats(replan_lat),
         "clearing_s": _stats(clearing),

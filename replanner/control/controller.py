@@ -185,10 +185,10 @@ class Controller:
             gap = now - self._last_check if self._last_check > -math.inf else 0.0
             self._check_gap = min(max(gap, 0.9 * self._check_gap), 0.25)  # a stall is the watchdogs' case
             self._last_check = now
-            sent = self.moves.sent
+            sent, watching = self.moves.sent, self.state not in (State.WAITING.value, State.PLANNING.value)
             self._check(now)
             done = self.clock()
-            self.latency.checked(done, gap)
+            self.latency.checked(done, gap, watching)
             if self.moves.sent != sent:
                 self.latency.command_sent(done, now)
         if self.state != State.WAITING.value and (why := self.liveness.silent(self.clock())) is not None:
@@ -445,7 +445,7 @@ class Controller:
         moving = self.moves.timeline.moving(now)
         clear = self.monitor.check_path(view).clear
         self._clear_count = self._clear_count + 1 if clear else 0
-        room = moving or self.monitor.check_speed(view).blocking is None  # may it move at all (people near)?
+        room = moving or self.monitor.check_speed(view, 0.1).blocking is None  # may it move (people near)? at rest
         if self._resumable and self._clear_count >= self.cfg.clear_checks and not moving and room:
             # everything that can block, nothing remembered: a resume must not re-enter a blocked path
             final = self.monitor.check_path(view, fresh=True).blocking

@@ -22,16 +22,19 @@ class Window:
 
     def __init__(self, seconds: float, cap: int = 4000):
         self.seconds = seconds
-        self._samples: deque[tuple[float, float]] = deque(maxlen=cap)
+        self._times: deque[float] = deque(maxlen=cap)
+        self._values: deque[float] = deque(maxlen=cap)
 
     def add(self, now: float, value: float) -> None:
         if math.isfinite(value):
-            self._samples.append((now, max(0.0, value)))
+            self._times.append(now)
+            self._values.append(max(0.0, value))
 
     def values(self, now: float) -> np.ndarray:
-        while self._samples and self._samples[0][0] < now - self.seconds:
-            self._samples.popleft()
-        return np.array([v for _, v in self._samples])
+        while self._times and self._times[0] < now - self.seconds:
+            self._times.popleft()
+            self._values.popleft()
+        return np.fromiter(self._values, dtype=float, count=len(self._values))
 
     def summary(self, now: float) -> dict:
         """{"median", "p99", "max", "n"} in s over the window (None without samples)."""
@@ -64,6 +67,7 @@ class LatencyAccount:
         self._unchecked: list[tuple[float, float]] = []  # (sensor stamp, integrated) of maps not yet checked
         self._newest_sensor: float | None = None  # the sensor stamp the last check saw
         self._cache: tuple[float, float] | None = None
+        self._age_cache: tuple[float, float] | None = None
 
     def map_integrated(self, now: float, sensor_stamp: float | None) -> None:
         if sensor_stamp is None:
@@ -72,10 +76,15 @@ class LatencyAccount:
             self.stages["sensor_to_map"].add(now, now - sensor_stamp)
             self._unchecked.append((sensor_stamp, now))
 
-    def checked(self, now: float, gap: float) -> None:
-        """A monitor check finished at `now`; it saw every map integrated before it started."""
+    def checked(self, now: float, gap: float, watching: bool = True) -> None:
+        """A monitor check finished at `now`; it saw every map integrated before it started.
+
+        watching: False when nothing moves and nothing was looked at (maps waiting then are no reaction samples).
+        """
         with self._lock:
             maps, self._unchecked = self._unchecked, []
+            if not watching:
+                return
             for stamp, integrated in maps:
                 self.stages["map_to_check"].add(now, now - integrated)
                 self.stages["reaction"].add(now, now - stamp)
@@ -108,9 +117,15 @@ class LatencyAccount:
         return value
 
     def joint_state_age(self, now: float) -> float:
+        """The `percentile` of joint-state ages [s] (refreshed at most every 50 ms, as `reaction_time`)."""
+        cached = self._age_cache
+        if cached is not None and 0.0 <= now - cached[0] < 0.05:
+            return cached[1]
         with self._lock:
             a = self.stages["joint_state_age"].values(now)
-        return float(np.percentile(a, self.percentile)) if len(a) else 0.0
+        value = float(np.percentile(a, self.percentile)) if len(a) else 0.0
+        self._age_cache = (now, value)
+        return value
 
     def report(self, now: float) -> dict:
         """Every stage's median, p99, max and count over the window [s]; T_r as the monitor uses it."""

@@ -74,6 +74,7 @@ class Monitor:
         self.speed_checks = list(speed_checks)
         self.stats = MonitorStats()
         self._grid_cache: dict[tuple, tuple[np.ndarray, np.ndarray, Trajectory]] = {}
+        self._speed: tuple[float, Report] | None = None
 
     # ------------------------------------------------------------------ the motion as it stands
     def _grid(self, traj: Trajectory, to_curve_end: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -134,9 +135,17 @@ class Monitor:
         checks = [c for c in self.close_checks if not (path_clear and c.only_when_blocked)]
         return self._run(checks, view, False)
 
-    def check_speed(self, view: MotionView) -> Report:
-        """How fast may the arm go now? Every speed check's verdict (a `speed_factor` each), in order."""
-        return Report(tuple(check(view, False) for check in self.speed_checks))
+    def check_speed(self, view: MotionView, max_age: float = 0.0) -> Report:
+        """How fast may the arm go now? Every speed check's verdict (a `speed_factor` each), in order.
+
+        max_age: a report this young [s] is good enough (an arm at rest asking whether it may move again).
+        """
+        cached = self._speed
+        if cached is not None and 0.0 <= view.now - cached[0] < max_age:
+            return cached[1]
+        report = Report(tuple(check(view, False) for check in self.speed_checks))
+        self._speed = (view.now, report)
+        return report
 
     @staticmethod
     def _run(checks: list[Check], view: MotionView, fresh: bool) -> Report:

@@ -135,21 +135,26 @@ class SpeedSeparationCheck(Check):
         self.last_separation: float | None = None
         self._points(checker.robot.home[None])  # sample the bodies now: the first check must not stall
 
-    def _points(self, Q: np.ndarray) -> tuple[np.ndarray, float]:
-        """Surface points (len(Q), n, 3) of every body at configurations Q, and their covering margin [m]."""
+    def _points(self, Q: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+        """Surface points (len(Q), n, 3) of every body at configurations Q, their covering margin [m], the body
+        of each point (n,), and each body's bounding ball at Q[0]: centre and radius (B, 4) [m]."""
         bp = self.checker.body_poses(Q)
-        local, owner, margin = [], [], 0.0
+        local, owner, balls, margin = [], [], [], 0.0
         for b, shape in enumerate(bp.shapes):
             hit = self._samples.get(id(shape))
             if hit is None or hit[0] is not shape:
-                hit = (shape, *surface_points(shape, self.cfg.point_spacing))
+                pts, gap = surface_points(shape, self.cfg.point_spacing)
+                c = (pts.min(axis=0) + pts.max(axis=0)) / 2
+                hit = (shape, pts, gap, c, float(np.linalg.norm(pts - c, axis=1).max()))
                 self._samples[id(shape)] = hit
             local.append(hit[1])
             owner.append(np.full(len(hit[1]), b))
+            T0 = bp.poses[0, b]
+            balls.append(np.append(T0[:3, :3] @ hit[3] + T0[:3, 3], hit[4]))
             margin = max(margin, hit[2])
         L, idx = np.vstack(local), np.concatenate(owner)
         T = bp.poses[:, idx]  # (N, n, 4, 4)
-        return np.einsum("nkij,kj->nki", T[..., :3, :3], L) + T[..., :3, 3], margin
+        return np.einsum("nkij,kj->nki", T[..., :3, :3], L) + T[..., :3, 3], margin, idx, np.array(balls)
 
     def __call__(self, view: MotionView, fresh: bool = False) -> Verdict:
         occ = self.checker.world.snapshot().occupancy
@@ -164,10 +169,17 @@ class SpeedSeparationCheck(Check):
         k = int(np.argmax(v))
         qd = traj.evaluate(ts[k : k + 1], order=1)[1][0]
         eps = 1e-3
-        P, margin = self._points(np.stack([view.q, view.q + eps * qd]))
-        points, vel = P[0], (P[1] - P[0]) / eps
+        P, margin, owner, balls = self._points(np.stack([view.q, view.q + eps * qd]))
         half = occ.resolution * math.sqrt(3) / 2
-        d, i = occ.kdtree.query(points, distance_upper_bound=self.cfg.range + half + margin)
+        bound = self.cfg.range + half + margin
+        # only bodies whose ball may hold a point within 5 cm of the nearest are searched point by point
+        dc, _ = occ.kdtree.query(balls[:, :3], distance_upper_bound=bound + balls[:, 3].max())
+        low, high = dc - balls[:, 3], dc + balls[:, 3]
+        pick = np.flatnonzero(low <= min(float(high.min()), bound) + 0.05)
+        sel = np.flatnonzero(np.isin(owner, pick))
+        vel = (P[1] - P[0]) / eps
+        points = P[0, sel]
+        d, i = occ.kdtree.query(points, distance_upper_bound=bound)
         near = np.isfinite(d)
         if not near.any():
             self.last, self.last_separation = None, None
@@ -177,7 +189,7 @@ class SpeedSeparationCheck(Check):
         close = near & (d <= d[near].min() + 0.05)
         toward = occ.centers[i[close]] - points[close]
         toward /= np.maximum(np.linalg.norm(toward, axis=1, keepdims=True), 1e-9)
-        v_r = max(0.0, float(np.max(np.sum(vel[close] * toward, axis=1))))
+        v_r = max(0.0, float(np.max(np.sum(vel[sel[close]] * toward, axis=1))))
         T_s, S_s, tau = self._stopping(traj, s[k], v[k], a[k], vel)
         speed = float(np.linalg.norm(vel, axis=1).max())
         terms = SeparationTerms(

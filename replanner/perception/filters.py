@@ -146,7 +146,11 @@ class SelfFilter:
         self._robot_offsets = np.array([robot.frame_offset(b.link)[1] @ b.T_link_body for b in robot.bodies])
         # grid: the known objects are drawn into it once per scene version; then a cell's test is one lookup
         self.grid = grid
-        self._drawn: dict[int, np.ndarray] = {}
+        self._drawn: dict[int, tuple[np.ndarray, list[np.ndarray]]] = {}
+        self._cells: dict[tuple, np.ndarray] = {}
+        # the scene now and as it was at a frame's stamp: a few versions at most; np.full touches every page now
+        drawing = grid is not None and static_padding is not None
+        self._free = [np.full(grid.size, False) for _ in range(4)] if drawing else []
 
     def keep_mask(
         self, points: np.ndarray, q: np.ndarray, snapshot: WorldSnapshot | None = None, cells: np.ndarray | None = None
@@ -182,27 +186,42 @@ class SelfFilter:
         """Boolean over the grid's cells: the centre lies in a padded known object (cached per scene version)."""
         hit = self._drawn.get(snapshot.version)
         if hit is not None:
+            return hit[0]
+        cells = [self._object_cells(o.shape, o.pose) for o in snapshot.objects.values()]
+        if self._free:
+            drawn = self._free.pop()
+        else:
+            drawn, old = self._drawn.pop(next(iter(self._drawn)))
+            for c in old:
+                drawn[c] = False  # reused: clearing what it held is cheaper than a new grid
+        for c in cells:
+            drawn[c] = True
+        self._drawn[snapshot.version] = (drawn, cells)
+        return drawn
+
+    def _object_cells(self, shape: Shape, pose: np.ndarray) -> np.ndarray:
+        """Flat cells whose centre lies in the padded object (cached per shape and pose: most objects stay put)."""
+        key = (shape, pose.tobytes())
+        hit = self._cells.get(key)
+        if hit is not None:
             return hit
-        g, objects = self.grid, list(snapshot.objects.values())
-        drawn = np.zeros(g.size, dtype=bool)
-        for o in objects:
-            st = _Stack([_padded_local(o.shape, float(self.static_padding))])
-            T = o.pose[None]
-            lo, hi = _world_box(st, T)
-            a = np.clip(np.floor(lo[0] / g.resolution).astype(np.int64), g.key_lo + 1, None)
-            b = np.clip(np.floor(hi[0] / g.resolution).astype(np.int64), None, g.key_lo + np.array(g.shape) - 2)
-            if np.any(b < a):
-                continue
+        g = self.grid
+        st = _Stack([_padded_local(shape, float(self.static_padding))])
+        T = pose[None]
+        lo, hi = _world_box(st, T)
+        a = np.clip(np.floor(lo[0] / g.resolution).astype(np.int64), g.key_lo + 1, None)
+        b = np.clip(np.floor(hi[0] / g.resolution).astype(np.int64), None, g.key_lo + np.array(g.shape) - 2)
+        flat = np.zeros(0, dtype=np.int64)
+        if np.all(b >= a):
             axes = [np.arange(a[i], b[i] + 1) for i in range(3)]
             keys = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
             inside = np.ones(len(keys), dtype=bool)
             _mark((keys + 0.5) * g.resolution, inside, st, T)
             flat = (keys[~inside] - g.key_lo) @ g.strides
-            drawn[flat] = True
-        if len(self._drawn) >= 4:  # the scene now and as it was at a frame's stamp: a few versions at most
-            self._drawn.pop(next(iter(self._drawn)))
-        self._drawn[snapshot.version] = drawn
-        return drawn
+        if len(self._cells) >= 256:
+            self._cells.pop(next(iter(self._cells)))
+        self._cells[key] = flat
+        return flat
 
 
 def _world_box(st: _Stack, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -58,7 +58,7 @@ class KinematicSim:
         self.perception, self.controller = st.perception, st.controller
         self.driver.subscribe(st.on_joint_state)
         self._pb_lock = threading.Lock()
-        self.scene = PyBulletScene(self.robot)
+        self.scene = PyBulletScene(self.robot, draw_collision=True)
         for name, shape, pose in static:
             self.scene.add(name, shape, pose)
         self.cameras = []

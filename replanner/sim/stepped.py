@@ -61,7 +61,7 @@ class SteppedSim:
             st.generator,
         )
         self.perception, self.controller = st.perception, st.controller
-        self.scene = PyBulletScene(robot)
+        self.scene = PyBulletScene(robot, draw_collision=True)
         for name, shape, pose in static:
             self.scene.add(name, shape, pose)
         self.cameras = []

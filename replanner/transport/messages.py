@@ -373,5 +373,9 @@ def decode_cloud(data: bytes, what: str = "cloud") -> tuple[float, np.ndarray, i
     if step < 12 or len(raw) != n * step:
         raise DecodeError(f"{what}: {len(raw)} data bytes for {n} points of {step} bytes")
     rows = raw.reshape(n, step)
-    pts = np.stack([rows[:, offs[c][0] : offs[c][0] + 4].copy().view(np.float32)[:, 0] for c in "xyz"], axis=1)
+    o = offs["x"][0]
+    if offs["y"][0] == o + 4 and offs["z"][0] == o + 8:  # the usual layout: x, y, z side by side, one copy
+        pts = rows[:, o : o + 12].copy().view(np.float32)
+    else:
+        pts = np.stack([rows[:, offs[c][0] : offs[c][0] + 4].copy().view(np.float32)[:, 0] for c in "xyz"], axis=1)
     return _time_of(msg.header.stamp), pts, int(msg.width), int(msg.height)
