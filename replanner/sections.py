@@ -343,6 +343,12 @@ class ControllerConfig(Section):
     goal_tolerance: float = Field(0.01, gt=0.0, description="Reached when every joint is this close [rad].")
     settle_timeout: float = Field(1.0, gt=0.0, description="Time after the trajectory's end to reach the goal [s].")
     brake_latency: float = Field(0.01, ge=0.0, le=0.5, description="A brake starts this long after it is decided [s].")
+    start_lead: float = Field(
+        0.05,
+        ge=0.0,
+        le=1.0,
+        description="A motion from rest starts this long after it is sent [s]: it must reach the robot first.",
+    )
     planning_process: bool = Field(
         True, description="Plan in a child process (a second core; with the GIL a thread shares the monitor's core)."
     )

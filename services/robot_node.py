@@ -52,7 +52,9 @@ class KinematicRobotNode:
             self.rejected += 1
             log.warning("trajectory rejected: %s", err)
             return
-        self.driver.execute(traj, start)
+        late = self.driver.timeline.receive(traj, start, self.driver.clock())
+        if late > 0.0:
+            log.warning("a trajectory from rest arrived %.0f ms after its start: started on arrival", late * 1e3)
 
 
 def run(cfg: ReplannerConfig, conf: zenoh.Config, q0=None) -> None:

@@ -6,6 +6,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from replanner.control import KinematicDriver, Timeline
 from replanner.trajectory.generator import TrajectoryGenerator
@@ -23,6 +24,18 @@ def test_timeline_replaces_from_the_start_time(panda):
     np.testing.assert_allclose(tl.state(10.1)[0], a.state_at(0.1)[0])  # before the switch: the old one
     np.testing.assert_allclose(tl.state(10.3)[0], b.state_at(0.1)[0])
     np.testing.assert_allclose(tl.state(99.0)[0], panda.home - 0.2)  # after the end: holds the end
+
+
+def test_a_late_motion_from_rest_starts_on_arrival_a_late_splice_does_not(panda):
+    gen = TrajectoryGenerator(panda)
+    a = gen.time(np.array([panda.home, panda.home + 0.3]))
+    tl = Timeline(panda.home)
+    late = tl.receive(a, 10.0, 10.15)
+    assert late == pytest.approx(0.15) and tl.segments()[0][0] == 10.15  # no jump into the middle of it
+    np.testing.assert_allclose(tl.state(10.15)[0], panda.home)
+    b = gen.slow_down(a, 0.2, 0.5)  # a splice: starts moving, lands at 10.35 on the robot's motion
+    assert tl.receive(b, 10.35, 10.4) == 0.0 and tl.segments()[-1][0] == 10.35  # moving: it runs as stamped
+    assert tl.receive(a, 30.0, 20.0) == 0.0 and tl.segments()[-1][0] == 30.0  # early: waits for its start
 
 
 class VirtualClock:
@@ -71,5 +84,3 @@ def test_driver_that_falls_behind_does_not_burst(panda):
     gaps = np.diff([s.stamp for s in got[:30]])
     assert gaps[9] >= 0.1 - 1e-9  # the stall itself
     np.testing.assert_allclose(np.delete(gaps, 9), 0.005, atol=1e-9)  # then the rate again, no catch-up burst
-
-

@@ -107,6 +107,7 @@ def svc(tmp_path_factory):
         cameras = CameraNode(cfg, session, scene_from_config(cfg), rate_hz=10.0, robot=robot).start()
         camera = cameras.clouds
         _wait(lambda: rec.js and camera.frames >= 3, 20, "joint states and clouds", stack)
+        _wait(lambda: client.state()["not_ready"] is None, 30, "the service ready for goals", stack)
         ns = type("Svc", (), {})()
         ns.stack, ns.cfg, ns.cfg_path, ns.robot, ns.session = stack, cfg, cfg_path, robot, session
         ns.client, ns.rec, ns.camera = client, rec, camera

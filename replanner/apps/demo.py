@@ -162,6 +162,9 @@ def compute_metrics(rec: Recording, *, safety_distance: float, bins: tuple[str, 
             for stage in ("sensor_to_map", "map_to_check", "check_to_command", "reaction", "joint_state_age")
         },
         "real_time_factor": _stats([e["rtf"] for e in kinds("clearance") if e.get("rtf") is not None]),
+        # the sim's own lag on a busy machine: physics skipped, motions that reached it after their start
+        "sim_dropped_s": max((e.get("dropped", 0.0) for e in kinds("clearance")), default=0.0),
+        "sim_late_starts": max((e.get("late", 0) for e in kinds("clearance")), default=0),
         "replan_s": _stats(replan_lat),
         "clearing_s": _stats(clearing),
     }

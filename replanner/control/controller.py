@@ -75,7 +75,7 @@ class Controller:
         if not self.sensors:
             log.warning("no cameras configured: the controller sees static objects only")
         checker.is_valid(robot.home)  # build lazily made geometry now: the first check must not stall the thread
-        self.moves = Moves(robot.home, generator, execute, clock, cfg.brake_latency, self.log_event)
+        self.moves = Moves(robot.home, generator, execute, clock, cfg.brake_latency, self.log_event, cfg.start_lead)
         self.machine = Machine(
             model=self,
             states=[s.value for s in State],
@@ -302,8 +302,7 @@ class Controller:
         if answer.error is not None:
             self._plan_error(job, answer.error)
             return
-        start = job.land if job.land is not None else now + self.cfg.brake_latency
-        self.moves.send(answer.trajectory, start)
+        start = self.moves.send_planned(answer.trajectory, job.land)
         res = answer.result
         self.log_event(
             "plan_sent",
@@ -494,5 +493,6 @@ class Controller:
             "checks": self.monitor.stats.checks,
             "clearance": self.last_clearance,
             "speed_factor": self.moves.speed_factor(),
+            "not_ready": self.liveness.silent(now, ready=True),  # why a goal sent now would be refused
             "latency": self.latency.report(now),
         }

@@ -33,9 +33,11 @@ class Moves:
         clock: Callable[[], float],
         latency: float,
         log_event: Callable[..., None],
+        lead: float = 0.0,
     ):
         self.timeline = Timeline(q0)
         self.gen, self._execute, self.clock, self.latency = generator, execute, clock, latency
+        self.lead = max(lead, latency)  # a motion from rest: no hurry, and it must reach the robot before it starts
         self.log_event = log_event
         self.sent = 0  # trajectories sent so far (the latency account times decision -> command)
 
@@ -44,6 +46,13 @@ class Moves:
         self.timeline.add(traj, start)
         self._execute(traj, start)
         self.sent += 1
+
+    def send_planned(self, traj: Trajectory, land: float | None = None) -> float:
+        """Run `traj` from `land` (a splice) or, one from rest, once it has had time to reach the robot; returns its
+        start [clock s]."""
+        start = self.clock() + self.lead if land is None else land
+        self.send(traj, start)
+        return start
 
     def speed_factor(self) -> float | None:
         """The share of its nominal speed the running motion is timed at, or None at rest."""
@@ -115,7 +124,7 @@ class Moves:
                     continue
                 gaps = [checker.clearance(q, max_distance=0.1).distance for q in pts[: first + 1]]
                 if np.all(np.diff(gaps) >= -1e-6):
-                    self.send(self.gen.time(pts), self.clock() + self.latency)
+                    self.send_planned(self.gen.time(pts))
                     return arc if s_to < s_now else -arc
         return None
 
@@ -126,4 +135,4 @@ class Moves:
             return
         rest = self.gen.resume(seg[1])
         if rest.duration > 0:
-            self.send(rest, self.clock() + self.latency)
+            self.send_planned(rest)

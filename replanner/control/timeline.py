@@ -39,6 +39,22 @@ class Timeline:
             kept = [(t, tr) for t, tr in self._segments if t < start]
             self._segments = [*kept, (float(start), traj)][-self._keep :]
 
+    def receive(self, traj: Timed, start: float, now: float) -> float:
+        """The robot's side: run `traj` from `start`, or from `now` if it arrives late to a robot at rest and starts
+        at rest (as a driver starts a trajectory stamped in the past: a jump would be worse). Returns the delay [s]."""
+        with self._lock:
+            seg = None
+            for s, tr in self._segments:
+                if s <= now:
+                    seg = (s, tr)
+            at_rest = seg is None or now - seg[0] >= seg[1].duration
+        late = now - start
+        if late > 0.0 and at_rest and np.abs(traj.state_at(0.0)[1]).max() < 1e-6:
+            self.add(traj, now)
+            return late
+        self.add(traj, start)
+        return 0.0
+
     def segments(self) -> list[tuple[float, Timed]]:
         """(start, trajectory) pairs in start order."""
         with self._lock:

@@ -117,6 +117,9 @@ class PhysicsSim:
         self.qd = np.zeros_like(q0)
         self.steps = 0
         self.rejected = 0
+        self.dropped = 0.0  # [s] of backlog the loop skipped on a busy machine
+        self.late = 0  # trajectories from rest that arrived after their start
+        self.t = time.time()  # the last physics step's time [s]
 
     # ------------------------------------------------------------------ running
     def start(self) -> PhysicsSim:
@@ -152,8 +155,12 @@ class PhysicsSim:
         self.add_trajectory(start, traj)
 
     def add_trajectory(self, start: float, traj: SampledTrajectory) -> None:
-        """Follow `traj` from `start` [s, wall clock] on, replacing what would run from then; thread-safe."""
-        self.timeline.add(traj, start)
+        """Follow `traj` from `start` [s, wall clock] on, replacing what would run from then; one from rest that
+        arrives after its start starts when it arrives (thread-safe)."""
+        late = self.timeline.receive(traj, start, self.t)
+        if late > 0.0:
+            self.late += 1
+            log.warning("a trajectory from rest arrived %.0f ms after its start: started on arrival", late * 1e3)
 
     def submit(self, fn: Callable, *args) -> Future:
         """Run `fn(*args)` in the loop's thread between steps; never blocks (raises SimBusyError when full).
@@ -189,7 +196,9 @@ class PhysicsSim:
                 k += 1
                 burst += 1
             if burst >= MAX_BURST:
-                t0 = time.time() - k * dt  # drop the backlog rather than run in a burst forever
+                t_new = time.time() - k * dt  # drop the backlog rather than run in a burst forever
+                self.dropped += t_new - t0
+                t0 = t_new
             self._run_calls()
             delay = t0 + k * dt - time.time()
             if delay > 0:
@@ -197,6 +206,7 @@ class PhysicsSim:
 
     def _tick(self, k: int, t: float) -> None:
         """Physics step `k`, at `t` [s], and whatever is due on it."""
+        self.t = t
         every, op_on = self.every, self.op_on
         self._step(t, operate=op_on and k % every["operator"] == 0)
         if k % every["js"] == 0:
@@ -223,6 +233,8 @@ class PhysicsSim:
                 operator=self.operator.present,
                 on_path=self.truth.on_path,
                 rtf=None if rtf is None else round(rtf, 3),
+                dropped=round(self.dropped, 3),
+                late=self.late,
             )
             self._window = math.inf
         self.steps += 1
