@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from replanner.control import KinematicDriver, Timeline
+from replanner.control.moves import Moves
 from replanner.trajectory.generator import TrajectoryGenerator
 
 
@@ -36,6 +37,20 @@ def test_a_late_motion_from_rest_starts_on_arrival_a_late_splice_does_not(panda)
     b = gen.slow_down(a, 0.2, 0.5)  # a splice: starts moving, lands at 10.35 on the robot's motion
     assert tl.receive(b, 10.35, 10.4) == 0.0 and tl.segments()[-1][0] == 10.35  # moving: it runs as stamped
     assert tl.receive(a, 30.0, 20.0) == 0.0 and tl.segments()[-1][0] == 30.0  # early: waits for its start
+
+
+def test_a_brake_calls_off_a_motion_sent_but_not_started(panda):
+    gen = TrajectoryGenerator(panda)
+    now = [10.0]
+    robot = Timeline(panda.home)
+    moves = Moves(panda.home, gen, robot.add, lambda: now[0], 0.01, lambda *a, **k: None, lead=0.05)
+    start = moves.send_planned(gen.time(np.array([panda.home, panda.home + 0.3])))  # a resume, say
+    assert start == pytest.approx(10.05)
+    now[0] = 10.02  # held again before it starts
+    assert moves.brake() is None
+    for t in (10.05, 10.2, 11.0):  # neither side ever runs it
+        np.testing.assert_allclose(robot.state(t)[0], panda.home)
+        np.testing.assert_allclose(moves.timeline.state(t)[0], panda.home)
 
 
 class VirtualClock:

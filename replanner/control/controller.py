@@ -446,9 +446,11 @@ class Controller:
         self._clear_count = self._clear_count + 1 if clear else 0
         room = moving or self.monitor.check_speed(view, 0.1).blocking is None  # may it move (people near)? at rest
         if self._resumable and self._clear_count >= self.cfg.clear_checks and not moving and room:
-            # everything that can block, nothing remembered: a resume must not re-enter a blocked path
+            # everything that can block, nothing remembered, people's distance fresh: no resume into a blocked path
             final = self.monitor.check_path(view, fresh=True).blocking
-            if final is None:
+            speed = self.monitor.check_speed(view)  # and not one the next check holds again (a hold-resume flap)
+            share = self.cfg.speed_separation.min_speed_share
+            if final is None and speed.blocking is None and speed.speed_factor >= share:
                 self.moves.resume()
                 self.resume(reason=f"the path was clear for {self._clear_count} checks")
                 return

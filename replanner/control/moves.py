@@ -72,9 +72,15 @@ class Moves:
         return start, traj, min(now - start + self.latency, traj.duration)
 
     def brake(self) -> Trajectory | None:
-        """The shortest jerk-limited stop along the running curve; None if the arm is at rest."""
+        """The shortest jerk-limited stop along the running curve; None if the arm is at rest. A motion sent but
+        not started yet (a resume, a plan from rest) is called off: replaced at its start by a stop at its start."""
         run = self._running()
         if run is None:
+            later = self.timeline.later(self.clock())
+            if later:
+                start, traj = later[0]
+                self.send(self.gen.brake(traj, 0.0), start)
+                self.log_event("brake", duration=0.0)
             return None
         start, traj, t = run
         stop = self.gen.brake(traj, t)
