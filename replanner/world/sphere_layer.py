@@ -1,0 +1,315 @@
+"""The fast, conservative layer of the collision checker: the robot (and what it carries) as spheres that cover
+its bodies, static objects as primitives (boxes, spheres, cylinders exactly; other shapes as covering spheres),
+the occupancy map as a summed-volume table of its voxels. `clear` says which configurations are free for certain;
+FCL decides the rest, so every verdict stays FCL's and only the near misses pay for it.
+
+Every test is conservative: a sphere grown by its padding over the inradius of FCL's padded polytope, a voxel
+counted when it touches the sphere's bounding box, self pairs compared sphere to sphere.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .collision_scene import CollisionScene
+from .geometry import Box, Cylinder, Sphere, _padding_directions
+from .occupancy import OccupancyMap
+from .scene import WorldSnapshot
+from .spheres import cover
+
+BOX, BALL, CYLINDER = 0, 1, 2
+
+
+def _inradius_factor() -> float:
+    """FCL's padded polytopes reach this many paddings from the body at most (see geometry.padded)."""
+    return float(np.linalg.norm(_padding_directions(), axis=1).max())
+
+
+class SphereScene:
+    """The sphere layer of one collision scene (read-only, shared by threads).
+
+    Args:
+        scene: the checker's scene of this world version (bodies, masks, self pairs).
+        snap: the same world version (its objects' shapes and poses).
+        padding, map_padding, self_padding: the checker's paddings [m] (self: between two bodies).
+    """
+
+    def __init__(self, robot, scene: CollisionScene, snap: WorldSnapshot, padding: float, map_padding: float):
+        grow = _inradius_factor()
+        slot, local, rad, body = [], [], [], []
+        first = [0]
+        for bi, b in enumerate(scene.bodies):
+            sp = cover(b.raw_shape)
+            s, off = robot.frame_offset(b.link)
+            T = off @ b.T_link_body
+            slot += [s] * len(sp)
+            local.append(sp.center @ T[:3, :3].T + T[:3, 3])
+            rad.append(sp.radius)
+            body += [bi] * len(sp)
+            first.append(first[-1] + len(sp))
+        self.slot = np.array(slot, dtype=np.int64)
+        self.local = np.ascontiguousarray(np.concatenate(local))
+        self.radius = np.concatenate(rad)
+        self.body = np.array(body, dtype=np.int64)
+        self.env_grow, self.map_grow = padding * grow, map_padding * grow
+        self.self_grow = 2.0 * robot.self_body_padding * grow
+        # self pairs of bodies; a body's spheres are first[b]:first[b + 1], inside a ball (slot, centre, radius)
+        self.first = np.array(first, dtype=np.int64)
+        # pairs that are always close (link 5 and 7) have clearance tables; the spheres take the others
+        self.pair_a, self.pair_b = scene.box_a.astype(np.int64), scene.box_b.astype(np.int64)
+        self.tables = scene.tables
+        ball_c, ball_r, ball_slot = [], [], []
+        for bi in range(len(scene.bodies)):
+            c, r = self.local[first[bi] : first[bi + 1]], self.radius[first[bi] : first[bi + 1]]
+            mid = (c - r[:, None]).min(axis=0) / 2 + (c + r[:, None]).max(axis=0) / 2
+            ball_c.append(mid)
+            ball_r.append(float((np.linalg.norm(c - mid, axis=1) + r).max()))
+            ball_slot.append(self.slot[first[bi]])
+        self.ball_c, self.ball_r = np.array(ball_c), np.array(ball_r)
+        self.ball_slot = np.array(ball_slot, dtype=np.int64)
+        # obstacles: kind, world -> obstacle (3, 4), dimensions, index in the scene's obstacle list
+        kind, inv, dim, oid = [], [], [], []
+        names = [name for name, _ in scene.obstacles]
+        for oi, name in enumerate(names):
+            o = snap.objects[name]
+            R, t = o.pose[:3, :3], o.pose[:3, 3]
+            if isinstance(o.shape, (Box, Sphere, Cylinder)):
+                parts = [(np.zeros(3), o.shape)]
+            else:
+                sp = cover(o.shape)
+                parts = [(c, Sphere(radius=float(r))) for c, r in zip(sp.center, sp.radius)]
+            for c, shape in parts:
+                kind.append(BOX if isinstance(shape, Box) else BALL if isinstance(shape, Sphere) else CYLINDER)
+                inv.append(np.c_[R.T, -R.T @ (t + R @ c)])
+                if isinstance(shape, Box):
+                    dim.append(np.asarray(shape.size) / 2)
+                elif isinstance(shape, Sphere):
+                    dim.append([shape.radius, 0.0, 0.0])
+                else:
+                    dim.append([shape.radius, shape.length / 2, 0.0])
+                oid.append(oi)
+        self.ob_kind = np.array(kind, dtype=np.int64)
+        self.ob_inv = np.array(inv, dtype=np.float64).reshape(-1, 3, 4)
+        self.ob_dim = np.array(dim, dtype=np.float64).reshape(-1, 3)
+        self.ob_id = np.array(oid, dtype=np.int64)
+        self.env_mask = np.ascontiguousarray(scene.env_mask)
+        self.octree_mask = np.ascontiguousarray(scene.octree_mask)
+
+    def clear(self, Q: np.ndarray, frames: np.ndarray, volume: VoxelVolume | None) -> np.ndarray:
+        """Which configurations Q (N, dof), with the robot's `frames` (N, 1 + dof, 4, 4), are free for certain
+        (bool (N,)); False: ask FCL."""
+        out = np.empty(len(frames), dtype=bool)
+        vol = volume or VoxelVolume.EMPTY
+        _clear(
+            np.ascontiguousarray(frames),
+            self.slot,
+            self.local,
+            self.radius,
+            self.body,
+            self.env_grow,
+            self.map_grow,
+            self.self_grow,
+            self.env_mask,
+            self.ob_kind,
+            self.ob_inv,
+            self.ob_dim,
+            self.ob_id,
+            self.octree_mask,
+            vol.sat,
+            vol.key_min,
+            vol.inv_res,
+            self.pair_a,
+            self.pair_b,
+            self.first,
+            self.ball_slot,
+            self.ball_c,
+            self.ball_r,
+            out,
+        )
+        if len(self.tables):
+            out &= ~self.tables.may_collide(Q).any(axis=1)
+        return out
+
+
+class FastChecker:
+    """A collision checker's verdicts, fast: the sphere layer answers the configurations it finds free for certain,
+    `checker` (FCL) the rest; the verdicts are the checker's (the layer is conservative: tests/test_sphere_layer.py).
+
+    Args:
+        checker: the exact checker; its world's edits and map updates are followed.
+    """
+
+    def __init__(self, checker):
+        self.checker = checker
+        self._cache: tuple | None = None  # (world version, map, SphereScene, VoxelVolume)
+
+    def layer(self) -> tuple[SphereScene, VoxelVolume]:
+        """The sphere layer and the map's voxel volume of the world as it is now (built once per version)."""
+        snap, scene, _, _ = self.checker._current()
+        c = self._cache
+        if c is None or c[0] is not snap.version or c[1] is not snap.occupancy:
+            if c is None or c[0] != snap.version:
+                layer = SphereScene(self.checker.robot, scene, snap, self.checker.padding, self.checker.map_padding)
+            else:
+                layer = c[2]
+            vol = VoxelVolume.of(snap.occupancy) if c is None or c[1] is not snap.occupancy else c[3]
+            c = self._cache = (snap.version, snap.occupancy, layer, vol)
+        return c[2], c[3]
+
+    def is_valid_batch(self, Q) -> np.ndarray:
+        """Validity (N,) of configurations Q (N, dof), as `checker.is_valid_batch` says."""
+        robot = self.checker.robot
+        Q = robot.check_q(Q)
+        layer, vol = self.layer()
+        out = layer.clear(Q, robot.frames(Q), vol) & robot.limits.within(Q, tol=0.0)
+        rest = np.flatnonzero(~out)
+        if len(rest):
+            out[rest] = self.checker.is_valid_batch(Q[rest])
+        return out
+
+    def is_valid(self, q) -> bool:
+        return bool(self.is_valid_batch(np.asarray(q, dtype=float)[None])[0])
+
+
+class VoxelVolume:
+    """The occupancy map as a summed-volume table over its voxels' bounding box: how many voxels touch a box, in
+    eight lookups."""
+
+    EMPTY: VoxelVolume
+
+    def __init__(self, keys: np.ndarray, resolution: float):
+        keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+        self.inv_res = 1.0 / resolution
+        if not len(keys):
+            self.key_min = np.zeros(3, np.int64)
+            self.sat = np.zeros((1, 1, 1), np.int32)
+            return
+        self.key_min = keys.min(axis=0)
+        n = keys.max(axis=0) - self.key_min + 1
+        grid = np.zeros(tuple(n + 1), np.int32)
+        k = keys - self.key_min + 1
+        grid[k[:, 0], k[:, 1], k[:, 2]] = 1
+        self.sat = np.ascontiguousarray(grid.cumsum(0).cumsum(1).cumsum(2), dtype=np.int32)
+
+    @classmethod
+    def of(cls, occ: OccupancyMap | None) -> VoxelVolume:
+        return cls.EMPTY if occ is None or not len(occ) else cls(occ.keys, occ.resolution)
+
+
+VoxelVolume.EMPTY = VoxelVolume(np.zeros((0, 3), np.int64), 1.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _voxels_in(sat, key_min, inv_res, lo0, lo1, lo2, hi0, hi1, hi2):
+    """Voxels whose cube meets the box [lo, hi] [m] (a summed-volume table with a zero first plane per axis)."""
+    n0, n1, n2 = sat.shape[0] - 1, sat.shape[1] - 1, sat.shape[2] - 1
+    a0 = max(np.int64(np.floor(lo0 * inv_res)) - key_min[0], 0)
+    a1 = max(np.int64(np.floor(lo1 * inv_res)) - key_min[1], 0)
+    a2 = max(np.int64(np.floor(lo2 * inv_res)) - key_min[2], 0)
+    b0 = min(np.int64(np.floor(hi0 * inv_res)) - key_min[0], n0 - 1)
+    b1 = min(np.int64(np.floor(hi1 * inv_res)) - key_min[1], n1 - 1)
+    b2 = min(np.int64(np.floor(hi2 * inv_res)) - key_min[2], n2 - 1)
+    if a0 > b0 or a1 > b1 or a2 > b2:
+        return 0
+    b0, b1, b2 = b0 + 1, b1 + 1, b2 + 1
+    return (
+        sat[b0, b1, b2]
+        - sat[a0, b1, b2]
+        - sat[b0, a1, b2]
+        - sat[b0, b1, a2]
+        + sat[a0, a1, b2]
+        + sat[a0, b1, a2]
+        + sat[b0, a1, a2]
+        - sat[a0, a1, a2]
+    )
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _env_free(x, y, z, reach, b, env_mask, ob_kind, ob_inv, ob_dim, ob_id):
+    """Is a ball (centre x, y, z, radius `reach`) of body b apart from every static object it may not touch?"""
+    for o in range(ob_kind.shape[0]):
+        if not env_mask[b, ob_id[o]]:
+            continue
+        M = ob_inv[o]
+        p0 = M[0, 0] * x + M[0, 1] * y + M[0, 2] * z + M[0, 3]
+        p1 = M[1, 0] * x + M[1, 1] * y + M[1, 2] * z + M[1, 3]
+        p2 = M[2, 0] * x + M[2, 1] * y + M[2, 2] * z + M[2, 3]
+        k = ob_kind[o]
+        if k == 0:
+            q0 = max(abs(p0) - ob_dim[o, 0], 0.0)
+            q1 = max(abs(p1) - ob_dim[o, 1], 0.0)
+            q2 = max(abs(p2) - ob_dim[o, 2], 0.0)
+            d = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
+        elif k == 1:
+            d = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2) - ob_dim[o, 0]
+        else:
+            qr = max(np.sqrt(p0 * p0 + p1 * p1) - ob_dim[o, 0], 0.0)
+            qz = max(abs(p2) - ob_dim[o, 1], 0.0)
+            d = np.sqrt(qr * qr + qz * qz)
+        if d <= reach:
+            return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _clear(
+    frames, slot, local, rad, body, env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id,
+    octree_mask, sat, key_min, inv_res, pair_a, pair_b, first, ball_slot, ball_c, ball_r, out,
+):  # fmt: skip
+    S, B = slot.shape[0], ball_slot.shape[0]
+    C = np.empty((S, 3))
+    BC = np.empty((B, 3))
+    for n in range(frames.shape[0]):
+        for s in range(S):
+            F = frames[n, slot[s]]
+            x, y, z = local[s, 0], local[s, 1], local[s, 2]
+            for r in range(3):
+                C[s, r] = F[r, 0] * x + F[r, 1] * y + F[r, 2] * z + F[r, 3]
+        for b in range(B):
+            F = frames[n, ball_slot[b]]
+            x, y, z = ball_c[b, 0], ball_c[b, 1], ball_c[b, 2]
+            for r in range(3):
+                BC[b, r] = F[r, 0] * x + F[r, 1] * y + F[r, 2] * z + F[r, 3]
+        clear = True
+        for b in range(B):
+            # the body's ball first: far from everything, its spheres need no test
+            x, y, z = BC[b, 0], BC[b, 1], BC[b, 2]
+            env = _env_free(x, y, z, ball_r[b] + env_grow, b, env_mask, ob_kind, ob_inv, ob_dim, ob_id)
+            m = ball_r[b] + map_grow
+            free_map = (
+                not octree_mask[b] or _voxels_in(sat, key_min, inv_res, x - m, y - m, z - m, x + m, y + m, z + m) == 0
+            )
+            if env and free_map:
+                continue
+            for s in range(first[b], first[b + 1]):
+                x, y, z = C[s, 0], C[s, 1], C[s, 2]
+                if not env and not _env_free(x, y, z, rad[s] + env_grow, b, env_mask, ob_kind, ob_inv, ob_dim, ob_id):
+                    clear = False
+                    break
+                m = rad[s] + map_grow
+                if not free_map and _voxels_in(sat, key_min, inv_res, x - m, y - m, z - m, x + m, y + m, z + m) > 0:
+                    clear = False
+                    break
+            if not clear:
+                break
+        if clear:
+            for p in range(pair_a.shape[0]):
+                ba, bb = pair_a[p], pair_b[p]
+                d0, d1, d2 = BC[ba, 0] - BC[bb, 0], BC[ba, 1] - BC[bb, 1], BC[ba, 2] - BC[bb, 2]
+                reach = ball_r[ba] + ball_r[bb] + self_grow
+                if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach:
+                    continue  # the two bodies' balls are apart
+                for a in range(first[ba], first[ba + 1]):
+                    for c in range(first[bb], first[bb + 1]):
+                        d0, d1, d2 = C[a, 0] - C[c, 0], C[a, 1] - C[c, 1], C[a, 2] - C[c, 2]
+                        reach = rad[a] + rad[c] + self_grow
+                        if d0 * d0 + d1 * d1 + d2 * d2 <= reach * reach:
+                            clear = False
+                            break
+                    if not clear:
+                        break
+                if not clear:
+                    break
+        out[n] = clear
+    return out

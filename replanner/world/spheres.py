@@ -1,0 +1,89 @@
+"""Shapes covered by spheres, for planning: every point of a shape lies inside one of its spheres, so a check of
+the spheres never calls free what the exact shape touches (it may call a near miss a collision: FCL, which
+keeps the last word, decides those).
+
+A convex body is halved across its longest extent until its pieces are small: each half is a convex polytope whose
+vertices are the body's vertices on that side and the crossings of its edges with the plane, and the farthest
+point of a convex polytope from any centre is one of its vertices, so the sphere through the farthest vertex
+covers the piece exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from .geometry import Box, ConvexHull, Cylinder, Shape, Sphere
+
+TOLERANCE = 0.04  # [m] a sphere may reach beyond its body's face planes: tighter means more spheres
+MAX_DEPTH = 10  # halvings of a piece at most
+
+
+@dataclass(frozen=True)
+class Spheres:
+    """Spheres (centres (K, 3) [m] in the shape's frame, radii (K,) [m]) that cover a shape; none reaches more than
+    `excess` [m] beyond the shape's face planes."""
+
+    center: np.ndarray
+    radius: np.ndarray
+    excess: float = 0.0
+
+    def __len__(self) -> int:
+        return len(self.radius)
+
+
+def cover(shape: Shape, tolerance: float = TOLERANCE, max_depth: int = MAX_DEPTH) -> Spheres:
+    """Spheres whose union contains `shape` (a concave mesh through its convex hull: still conservative); pieces
+    are halved until their sphere reaches at most `tolerance` [m] beyond the shape's face planes (`max_depth`
+    halvings at most: `Spheres.excess` says how far they reach)."""
+    if isinstance(shape, Sphere):
+        return Spheres(np.zeros((1, 3)), np.array([shape.radius]))
+    if isinstance(shape, Cylinder):  # its exact polytope does not exist: a prism around it does
+        ring = np.linspace(0.0, 2 * np.pi, 17)[:-1]
+        r = shape.radius / np.cos(np.pi / 16)
+        xy = np.stack([r * np.cos(ring), r * np.sin(ring)], axis=1)
+        pts = np.concatenate([np.c_[xy, np.full(16, z)] for z in (-shape.length / 2, shape.length / 2)])
+    elif isinstance(shape, Box):
+        corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T
+        pts = corners * np.asarray(shape.size) / 2
+    else:
+        pts = shape.vertices
+    pts = np.asarray(pts, dtype=np.float64)
+    body = ConvexHull.of_points(pts)
+    mesh = trimesh.Trimesh(body.vertices, body.faces, process=False)
+    normals = np.asarray(mesh.face_normals)
+    planes = np.c_[normals, -np.einsum("ij,ij->i", normals, body.vertices[body.faces[:, 0]])]
+    centers, radii = [], []
+    _halve(body.vertices, planes, tolerance, max_depth, centers, radii)
+    center, radius = np.array(centers), np.array(radii)
+    excess = float((center @ planes[:, :3].T + planes[:, 3] + radius[:, None]).max(axis=1).max())
+    return Spheres(center, radius, max(excess, 0.0))
+
+
+def _halve(pts: np.ndarray, planes: np.ndarray, tol: float, depth: int, centers: list, radii: list) -> None:
+    """Cover the convex hull of `pts`: one sphere if it stays within `tol` of the body's face `planes` (unit normal,
+    offset), else both halves across its longest extent."""
+    c = (pts.min(axis=0) + pts.max(axis=0)) / 2
+    r = float(np.linalg.norm(pts - c, axis=1).max())
+    if float((planes[:, :3] @ c + planes[:, 3]).max()) + r <= tol or r <= tol or depth == 0 or len(pts) < 4:
+        centers.append(c)
+        radii.append(r)
+        return
+    try:
+        hull = ConvexHull.of_points(pts)
+    except Exception:  # flat or degenerate: its bounding sphere is all there is
+        centers.append(c)
+        radii.append(r)
+        return
+    v = hull.vertices
+    edges = np.unique(np.sort(trimesh.geometry.faces_to_edges(hull.faces), axis=1), axis=0)
+    axis = int(np.argmax(np.ptp(v, axis=0)))
+    plane = c[axis]
+    a, b = v[edges[:, 0]], v[edges[:, 1]]
+    cross = (a[:, axis] - plane) * (b[:, axis] - plane) < 0
+    t = (plane - a[cross, axis]) / (b[cross, axis] - a[cross, axis])
+    cut = a[cross] + t[:, None] * (b[cross] - a[cross])  # where the plane cuts the hull's edges
+    for side in (v[:, axis] <= plane, v[:, axis] >= plane):
+        _halve(np.concatenate([v[side], cut]), planes, tol, depth - 1, centers, radii)

@@ -1,0 +1,69 @@
+"""The sphere layer is conservative: what it calls free, FCL and pybullet call free too."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+
+from replanner.bench.scenes import add_table, clutter_map
+from replanner.world.collision import CollisionChecker
+from replanner.world.geometry import Box, Cylinder, Sphere, sample_surface
+from replanner.world.scene import World
+from replanner.world.sphere_layer import FastChecker
+from replanner.world.spheres import cover
+from replanner.world.transforms import make_transform
+from tests.oracle import PyBulletOracle
+
+
+def _inside_any(pts: np.ndarray, sp) -> np.ndarray:
+    d = np.linalg.norm(pts[:, None] - sp.center[None], axis=2) - sp.radius[None]
+    return d.min(axis=1) <= 1e-9
+
+
+def test_spheres_cover_every_point_of_every_body(profile):
+    _, robot = profile
+    rng = np.random.default_rng(3)
+    shapes = [b.shape for b in robot.bodies] + [Box(size=(0.3, 0.05, 0.6)), Cylinder(radius=0.04, length=0.5)]
+    for shape in shapes:
+        sp = cover(shape)
+        surface = sample_surface(shape, 4000, rng)
+        w = rng.dirichlet(np.ones(len(surface)), size=500)  # points inside: mixtures of surface points
+        assert _inside_any(surface, sp).all() and _inside_any(w @ surface, sp).all(), type(shape).__name__
+        assert 0.0 <= sp.excess <= 0.06
+
+
+def test_what_the_layer_calls_free_fcl_and_pybullet_call_free(profile):
+    cfg, robot = profile
+    rng = np.random.default_rng(5)
+    world = World(robot)
+    add_table(world)
+    world.add("post", Cylinder(radius=0.05, length=0.8), make_transform((0.45, 0.35, 0.4), (0, 0, 0, 1)))
+    world.add("ball", Sphere(radius=0.08), make_transform((0.3, -0.4, 0.6), (0, 0, 0, 1)))
+    world.add("shelf", Box(size=(0.3, 0.6, 0.02)), make_transform((0.55, 0.0, 0.5), rng.normal(size=4)))
+    occ = clutter_map(rng, 20_000)
+    world.set_occupancy(occ)
+    checker = CollisionChecker.from_config(robot, world, cfg.collision)
+    fast = FastChecker(checker)
+    Q = robot.random_q(rng, 10_000)
+    clear = fast.layer()[0].clear(Q, robot.frames(Q), fast.layer()[1])
+    valid = checker.is_valid_batch(Q)
+    assert not np.any(clear & ~valid)  # never free where FCL finds a contact
+    np.testing.assert_array_equal(fast.is_valid_batch(Q), valid)
+    oracle = PyBulletOracle(robot)
+    for name, o in world.objects.items():
+        oracle.add(name, o.shape, o.pose)
+    allowed = set(cfg.collision.allowed_contacts)
+    pairs = sorted({(robot.bodies[a].link, robot.bodies[b].link) for a, b in robot.self_collision_pairs})
+    misses = 0
+    for q in Q[clear]:
+        oracle.set_q(q)
+        misses += oracle.min_world_distance(0.0, allowed) < 0 or oracle.min_self_distance(pairs, 0.0)[0] < 0
+    oracle.close()
+    flagged_free = int((~clear & valid).sum())
+    print(
+        f"{robot.name}: {len(Q)} configurations, {int(clear.sum())} clear for the spheres, {int(valid.sum())} for FCL;"
+        f" flagged but free: {flagged_free} ({100 * flagged_free / max(valid.sum(), 1):.1f} % of the free ones)"
+    )
+    assert misses == 0
+    assert clear.sum() > 0.2 * valid.sum()  # the layer decides most free configurations itself
+    assert pb.isConnected(oracle.cid) == 0
