@@ -98,6 +98,16 @@ def test_bad_requests_name_the_problem(planner, start, goal, planner_name, deadl
         planner.plan(start, goal, planner=planner_name, deadline=deadline)
 
 
+def test_a_start_a_hair_past_a_limit_plans_from_the_limit_a_start_far_past_is_refused(planner, panda):
+    start = A.copy()
+    start[0] = panda.limits.lower[0] - 2e-5  # an arm settled at its limit, as measured
+    res = planner.plan(start, B, deadline=2.0)
+    assert res.path[0][0] == panda.limits.lower[0] and np.abs(res.path[0] - start).max() < 3e-5
+    start[0] = panda.limits.lower[0] - 0.01
+    with pytest.raises(StartInvalid, match="panda_joint1 = .* is outside its limits"):
+        planner.plan(start, B)
+
+
 def test_goal_and_start_in_collision_name_link_and_object(planner, wall_world, panda):
     into_wall = A.copy()
     hand_at = None

@@ -29,6 +29,7 @@ from .ik import IKError, solve_ik
 log = logging.getLogger(__name__)
 
 ou.setLogLevel(ou.LogLevel.LOG_WARN)
+START_LIMIT_SLACK = 1e-3  # [rad] a start this far past a joint limit (an arm at its limit, measured) plans from it
 
 PLANNERS = {
     "RRTConnect": og.RRTConnect,
@@ -327,9 +328,10 @@ class Planner:
         cls = planner_class(name)
         r = self.robot
         try:
-            start = r.check_within_limits(start, "start")
+            start = r.check_within_limits(start, "start", tol=START_LIMIT_SLACK)
         except InvalidInputError as err:
             raise StartInvalid(str(err)) from None
+        start = np.clip(start, r.limits.lower, r.limits.upper)  # a measured arm settles a hair past a limit
         contact = self.checker.check(start)
         if contact is not None:
             raise StartInvalid(f"start is in collision: {contact}", contact)
