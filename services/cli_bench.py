@@ -236,23 +236,14 @@ def bench_reaction(
     if as_json:
         print_json(result)
         return
-    t = Table(title=f"reaction: {runs} boxes dropped {result['time_to_contact_s']} s ahead of the arm")
-    for col in ("interval", "median ms", "p95 ms", "n"):
-        t.add_column(col)
-    for key, label in [
+    title = f"reaction: {runs} boxes dropped {result['time_to_contact_s']} s ahead of the arm"
+    rows = [
         ("drop_to_map_ms", "drop -> in the map"),
         ("map_to_pending_ms", "map -> PENDING"),
         ("pending_to_spliced_ms", "PENDING -> spliced (decided)"),
         ("pending_to_landed_ms", "PENDING -> new trajectory takes over"),
-    ]:
-        v = result[key]
-        t.add_row(
-            label,
-            f"{v['median']:.0f}" if v["median"] is not None else "-",
-            f"{v['p95']:.0f}" if v["p95"] is not None else "-",
-            str(v["n"]),
-        )
-    Console().print(t)
+    ]
+    Console().print(_stats_table(title, "interval", rows, result, "{:.0f}"))
     Console().print(
         f"replanned without stopping: {result['replanned_without_stopping']} of {runs}; braked: "
         f"{result['braked']}; goals reached: {result['succeeded']}; min clearance to the box "
@@ -305,13 +296,9 @@ def bench_splice(
     if as_json:
         print_json(result)
         return
-    t = Table(title=f"splice: {result['robot']}, {n} seeded mid-motion states")
-    for col in ("", "median ms", "p95 ms", "n"):
-        t.add_column(col)
-    for key, label in [("splice_ms", "every splice"), ("spliced_ms", "spliced"), ("refused_ms", "refused")]:
-        v = result[key]
-        t.add_row(label, _ms(v["median"]), _ms(v["p95"]), str(v["n"]))
-    Console().print(t)
+    title = f"splice: {result['robot']}, {n} seeded mid-motion states"
+    rows = [("splice_ms", "every splice"), ("spliced_ms", "spliced"), ("refused_ms", "refused")]
+    Console().print(_stats_table(title, "", rows, result))
     Console().print(f"refused: {result['refused']} (bar: p95 <= {result['bars']['splice_ms_p95']} ms)")
 
 
@@ -338,3 +325,15 @@ def bench_scene_edit(
 
 def _ms(v) -> str:
     return "-" if v is None else f"{v:.2f}"
+
+
+def _stats_table(title: str, head: str, rows: list[tuple[str, str]], result: dict, fmt: str = "{:.2f}") -> Table:
+    """A table of (key, label) rows of `result`'s {median, p95, n} figures [ms]."""
+    t = Table(title=title)
+    for col in (head, "median ms", "p95 ms", "n"):
+        t.add_column(col)
+    for key, label in rows:
+        v = result[key]
+        cell = [("-" if v[k] is None else fmt.format(v[k])) for k in ("median", "p95")]
+        t.add_row(label, *cell, str(v["n"]))
+    return t

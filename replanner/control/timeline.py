@@ -42,14 +42,8 @@ class Timeline:
     def receive(self, traj: Timed, start: float, now: float) -> float:
         """The robot's side: run `traj` from `start`, or from `now` if it arrives late to a robot at rest and starts
         at rest (as a driver starts a trajectory stamped in the past: a jump would be worse). Returns the delay [s]."""
-        with self._lock:
-            seg = None
-            for s, tr in self._segments:
-                if s <= now:
-                    seg = (s, tr)
-            at_rest = seg is None or now - seg[0] >= seg[1].duration
         late = now - start
-        if late > 0.0 and at_rest and np.abs(traj.state_at(0.0)[1]).max() < 1e-6:
+        if late > 0.0 and not self.moving(now) and np.abs(traj.state_at(0.0)[1]).max() < 1e-6:
             self.add(traj, now)
             return late
         self.add(traj, start)
