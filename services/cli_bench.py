@@ -323,10 +323,6 @@ def bench_scene_edit(
     )
 
 
-def _ms(v) -> str:
-    return "-" if v is None else f"{v:.2f}"
-
-
 def _stats_table(title: str, head: str, rows: list[tuple[str, str]], result: dict, fmt: str = "{:.2f}") -> Table:
     """A table of (key, label) rows of `result`'s {median, p95, n} figures [ms]."""
     t = Table(title=title)
