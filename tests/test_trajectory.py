@@ -233,3 +233,18 @@ def test_slow_downs_do_not_compound_and_a_resume_goes_back_to_full_speed(panda, 
     np.testing.assert_allclose(rest.limits.velocity, traj.limits.velocity)
     v = np.abs(rest.evaluate(np.arange(0.0, rest.duration, DT))[1]) / traj.limits.velocity
     assert v.max() > 0.55  # faster than the slowed limits allow
+
+
+def test_derivative_bounds_of_transitions_hold_everywhere_on_them():
+    """The compiled bounds a splice screens its transitions with: never below |q'|, |q''|, |q'''| sampled densely."""
+    from replanner.trajectory.curve import QuinticPiece, quintic_coefficients
+
+    rng = np.random.default_rng(3)
+    ends = [rng.normal(0, s, (40, 7)) for s in (1.0, 1.0, 3.0, 1.0, 1.0, 3.0)]
+    C = quintic_coefficients(*ends)
+    for c in C:
+        ell = float(rng.uniform(0.05, 2.0))
+        for piece in QuinticPiece.split(c, ell, 8):
+            x = np.linspace(0.0, piece.length, 4001)
+            sampled = np.stack([np.abs(piece.eval(x, k)).max(axis=0) for k in (1, 2, 3)])
+            assert np.all(piece.m >= sampled - 1e-12 * (1 + sampled))

@@ -35,6 +35,7 @@ def run(cfg: ReplannerConfig, *, seed: int = 0, n: int = 100, progress=None) -> 
     checker, planner, gen = stack.checker, stack.planner, stack.generator
     warm = gen.time(np.array([robot.home, robot.home + 0.3]))  # first calls build lazily made geometry
     q_warm = warm.state_at(0.2)[0]
+    checker.path_valid(np.array([robot.home, q_warm]))  # the collision scene is built on its first check
     try:
         gen.splice(warm, 0.2, np.array([q_warm, q_warm + 0.2]))
     except TrajectoryError:

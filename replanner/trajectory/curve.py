@@ -8,11 +8,11 @@ acceleration and jerk bounds from them.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from functools import lru_cache
 
 import numpy as np
 
 from ..errors import TrajectoryError
+from .kernels import quintic_peaks
 
 EPS = 1e-9
 BLEND_PARTS = 4  # a blend is timed in parts: its ends are straighter than its middle
@@ -105,30 +105,20 @@ class QuinticPiece(Piece):
         return [cls(coeffs, ell, a, b, m[i]) for i, (a, b) in enumerate(zip(edges[:-1], edges[1:]))]
 
 
-@lru_cache(maxsize=16)
-def _sampling(edges: tuple[float, ...]) -> tuple[list[np.ndarray], np.ndarray]:
-    """Basis matrices of derivatives 1..4 at the samples of each [edges[i], edges[i+1]], and the sample spacing."""
-    e = np.asarray(edges)
-    S = QuinticPiece._SAMPLES
-    u = (e[:-1, None] + (e[1:] - e[:-1])[:, None] * np.linspace(0.0, 1.0, S)[None]).ravel()
-    return [basis(u, k) for k in (1, 2, 3, 4)], 0.5 / (S - 1) * (e[1:] - e[:-1])
-
-
 def quintic_bounds(c: np.ndarray, ell, edges: np.ndarray) -> np.ndarray:
     """Bounds (..., parts, 3, dof) of the first three derivatives' magnitudes over each [edges[i], edges[i+1]] of u.
 
     c: coefficients (..., 6, dof), ell: arc scale (...,). Sampled maxima plus the change possible between samples
     (the next derivative's maximum x half the spacing).
     """
-    mats, spacing = _sampling(tuple(float(x) for x in edges))
-    parts, S = len(spacing), QuinticPiece._SAMPLES
-    ell = np.asarray(ell, dtype=float)[..., None, None]
-    peak = []
-    for k, D in enumerate(mats, start=1):
-        vals = np.abs(D @ c)  # (..., parts * S, dof)
-        peak.append(vals.reshape(*vals.shape[:-2], parts, S, vals.shape[-1]).max(axis=-2) / ell**k)
-    h = spacing[:, None] * ell
-    return np.stack([peak[0] + h * peak[1], peak[1] + h * peak[2], peak[2] + h * peak[3]], axis=-2)
+    edges = np.ascontiguousarray(edges, dtype=float)
+    lead, dof = c.shape[:-2], c.shape[-1]
+    flat = np.ascontiguousarray(c, dtype=float).reshape(-1, 6, dof)
+    ells = np.array(np.broadcast_to(np.asarray(ell, dtype=float), lead).reshape(-1))  # writable: one compiled kind
+    S = QuinticPiece._SAMPLES
+    peak = quintic_peaks(flat, ells, edges, S, np.empty((len(flat), len(edges) - 1, 4, dof)))
+    h = (0.5 / (S - 1) * np.diff(edges))[:, None, None] * ells[:, None, None, None]
+    return (peak[..., :3, :] + h * peak[..., 1:, :]).reshape(*lead, len(edges) - 1, 3, dof)
 
 
 class Curve:

@@ -26,6 +26,7 @@ from .curve import (
     quintic_bounds,
     quintic_coefficients,
 )
+from .kernels import warm_up
 from .timelaw import (
     Limits,
     TimeLaw,
@@ -134,6 +135,7 @@ class TrajectoryGenerator:
         self.robot = robot
         self.checker = checker
         self.tube_radius = float(tube_radius)
+        warm_up()  # the timing kernels compile now, not in the first splice of a running motion
 
     @classmethod
     def from_config(cls, robot, checker, cfg) -> TrajectoryGenerator:
@@ -338,7 +340,13 @@ class TrajectoryGenerator:
                 "cannot splice the new path onto the motion: it starts against the motion; brake and plan from rest"
             )
         last_err = "no transition fits"
-        u_shape = np.linspace(0.0, 1.0, 12 * SPLICE_PARTS)
+        shape_basis = basis(np.linspace(0.0, 1.0, 12 * SPLICE_PARTS), 0)
+        # the merge points do not depend on the lead-in
+        merges = [point_along(W, min(length, 0.9 * total)) for length in SPLICE_MERGES]
+        B = np.array([b for b, _ in merges])
+        ks = [k for _, k in merges]
+        seg = W[np.array(ks) + 1] - W[np.array(ks)]
+        d_b = seg / np.linalg.norm(seg, axis=1, keepdims=True)
         for lead in SPLICE_LEADS:
             if lead > 0 and s0 + lead > old_end - 1e-6:
                 break
@@ -347,12 +355,7 @@ class TrajectoryGenerator:
             if np.linalg.norm(t1) < 1e-9:
                 continue
             # every merge point of this lead-in at once: transitions, their bounds and their shapes
-            merges = [point_along(W, min(length, 0.9 * total)) for length in SPLICE_MERGES]
-            B = np.array([b for b, _ in merges])
-            ks = [k for _, k in merges]
             ell = np.linalg.norm(B - p1, axis=1)
-            seg = W[np.array(ks) + 1] - W[np.array(ks)]
-            d_b = seg / np.linalg.norm(seg, axis=1, keepdims=True)
             scale = np.linalg.norm(t1)  # |dq/ds| is 1 on lines, near 1 on blends: keep q' continuous as is
             e = ell[:, None]
             C = quintic_coefficients(p1, e * t1, e**2 * k1, B, e * scale * d_b, np.zeros_like(B))
@@ -366,7 +369,8 @@ class TrajectoryGenerator:
             entry = bounds[:, 0, 0]
             reachable = slowest_entry(bounds, lengths)
             head_pts = traj.curve.eval(np.linspace(s0, s0 + lead, 12 * len(head))) if head else np.zeros((0, len(q0)))
-            shapes = [np.vstack([head_pts, basis(u_shape, 0) @ c]) for c in C]
+            curves = shape_basis @ C  # (merges, samples, dof)
+            shapes = [np.vstack([head_pts, c]) for c in curves]
             P = np.vstack(shapes)
             back = np.diff(progress_along(P, W).reshape(len(C), -1), axis=1).min(axis=1) < -1e-6
             for i in range(len(C)):

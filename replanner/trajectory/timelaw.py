@@ -15,6 +15,7 @@ import numpy as np
 import ruckig
 
 from ..errors import TrajectoryError
+from . import kernels
 from .curve import EPS, Curve, Piece
 
 CURVE_SHARE = 0.75  # of each joint's acceleration a blend may use for its curvature at full blend speed
@@ -63,38 +64,12 @@ def speed_bounds(m: np.ndarray, lim: Limits, strict: bool = True) -> np.ndarray:
 
     A piece too sharply curved to be timed raises TrajectoryError, or with strict=False gets bounds 0.
     """
-    m1, m2, m3 = m[:, 0], m[:, 1], m[:, 2]
-    v, a, j = lim.velocity, lim.acceleration, lim.jerk
-    on = m1 > EPS
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sv = np.where(on, v / m1, np.inf).min(axis=1)
-        out = np.stack([sv, np.where(on, a / m1, np.inf).min(axis=1), np.where(on, j / m1, np.inf).min(axis=1)], 1)
-        curved = np.flatnonzero(np.any(m2 > EPS, axis=1) | np.any(m3 > EPS, axis=1))
-        if not len(curved):
-            return out
-        m1, m2, m3, on = m1[curved], m2[curved], m3[curved], on[curved]
-        # curved: most of the acceleration and a quarter of the jerk go to following the curve at speed
-        sc = np.minimum(
-            sv[curved],
-            np.minimum(
-                np.where(m2 > EPS, np.sqrt(CURVE_SHARE * a / m2), np.inf).min(axis=1),
-                np.where(m3 > EPS, np.cbrt(0.25 * j / m3), np.inf).min(axis=1),
-            ),
-        )
-        cols = [sc]
-        for _ in range(29):  # 0.8 at a time, as far as 0.8^29: the first speed whose leftovers stay positive
-            cols.append(cols[-1] * 0.8)
-        SC = np.stack(cols, axis=1)[:, :, None]  # (C, 30, 1)
-        SA = np.where(on[:, None], (a - m2[:, None] * SC**2) / m1[:, None], np.inf).min(axis=2)
-        left = j - m3[:, None] * SC**3 - 3 * m2[:, None] * SC * SA[..., None]
-        SJ = np.where(on[:, None], left / m1[:, None], np.inf).min(axis=2)
-        ok = (SA > 0) & (SJ > 0)
-    timable = ok.any(axis=1)
+    m = np.ascontiguousarray(m, dtype=float)
+    out = np.empty((len(m), 3))
+    v, a, j = (np.ascontiguousarray(x, dtype=float) for x in (lim.velocity, lim.acceleration, lim.jerk))
+    timable = kernels.path_bounds(m, v, a, j, EPS, CURVE_SHARE, out)
     if strict and not timable.all():
         raise TrajectoryError("a path piece is too sharply curved to be timed within the joint limits")
-    k = ok.argmax(axis=1)
-    rows = np.arange(len(curved))
-    out[curved] = np.stack([SC[rows, k, 0], SA[rows, k], SJ[rows, k]], axis=1) * timable[:, None]
     return out
 
 
@@ -281,23 +256,5 @@ def slowest_entry(bounds: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     bounds (L, P, 3): each piece's (speed, acceleration, jerk) bounds; lengths (L, P). What follows a chain does
     not constrain it, so this is a cheap necessary condition (closed form, all chains at once) for `entry_speed`.
     """
-    cap = bounds[:, -1, 0]
-    for i in range(bounds.shape[1] - 1, -1, -1):
-        cap = np.minimum(bounds[:, i, 0], _reachable_from(cap, lengths[:, i], bounds[:, i, 1], bounds[:, i, 2]))
-    return cap * (1.0 + 1e-6) + 1e-9  # lenient: a screen must never refuse what the exact check admits
-
-
-def _reachable_from(vb: np.ndarray, length: np.ndarray, a: np.ndarray, j: np.ndarray) -> np.ndarray:
-    """The highest speed va >= vb that slows to vb within `length` (rest acceleration at both ends), closed form.
-
-    min_distance: with dv = va - vb, length = (vb + dv/2)(dv/a + a/j) when dv >= a^2/j (a quadratic in dv), else
-    length = (vb + dv/2) 2 sqrt(dv/j), a cubic in x = sqrt(dv/j): j x^3 + 2 vb x = length.
-    """
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        A, B, C = 1.0 / (2.0 * a), vb / a + a / (2.0 * j), vb * a / j - length
-        dv_a = (-B + np.sqrt(np.maximum(B * B - 4.0 * A * C, 0.0))) / (2.0 * A)
-        p, q = 2.0 * vb / j, -length / j
-        disc = np.sqrt(q * q / 4.0 + p**3 / 27.0)
-        x = np.cbrt(-q / 2.0 + disc) + np.cbrt(-q / 2.0 - disc)
-        dv = np.where(dv_a >= a * a / j, dv_a, j * x * x)
-    return vb + np.maximum(np.nan_to_num(dv, nan=np.inf), 0.0)
+    bounds = np.ascontiguousarray(bounds, dtype=float)
+    return kernels.slowest_entry(bounds, np.ascontiguousarray(lengths, dtype=float), np.empty(len(bounds)))
