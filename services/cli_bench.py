@@ -226,13 +226,19 @@ def bench_reaction(
     config: ConfigOpt = "panda",
     seed: int = typer.Option(0, min=0, help="Seed of the drops (place, size, time)."),
     runs: int = typer.Option(20, min=1, help="Boxes dropped (one per run)."),
+    ssm: bool = typer.Option(
+        False,
+        "--ssm/--no-ssm",
+        help="Keep speed and separation on: it stops the arm for anything this close (a box could be a person), "
+        "so the replanning chain is measured with it off unless asked.",
+    ),
     load: LoadOpt = 0,
     as_json: JsonOpt = False,
 ) -> None:
     """A box dropped into the arm's path: time to the map, to PENDING, to the spliced trajectory."""
     from replanner.bench import reaction
 
-    result = measured(load, lambda: reaction.run(resolve_config(config), seed=seed, runs=runs))
+    result = measured(load, lambda: reaction.run(resolve_config(config), seed=seed, runs=runs, speed_separation=ssm))
     if as_json:
         print_json(result)
         return
@@ -247,7 +253,7 @@ def bench_reaction(
     Console().print(
         f"replanned without stopping: {result['replanned_without_stopping']} of {runs}; braked: "
         f"{result['braked']}; goals reached: {result['succeeded']}; min clearance to the box "
-        f"(pybullet): {result['min_clearance_m'] * 1000:.1f} mm"
+        f"(pybullet): {result['min_clearance_m'] * 1000:.1f} mm; speed and separation: {result['speed_separation']}"
     )
 
 

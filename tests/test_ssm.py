@@ -130,3 +130,20 @@ def test_the_arm_slows_down_when_the_latency_grows(panda_cfg, panda):
     slow, res_slow = _lowest_speed(panda_cfg, panda, camera_latency=0.08)  # frames arrive 80 ms late: T_r grows
     assert res_fast.status == GoalStatus.SUCCEEDED and res_slow.status == GoalStatus.SUCCEEDED, (res_fast, res_slow)
     assert slow < fast - 0.1 and fast < 1.0  # near the "person" both slow, the late one more
+
+
+def test_replans_land_later_when_answers_have_been_arriving_late():
+    from replanner.control.latency import LatencyAccount
+
+    acc = LatencyAccount(window=10.0)
+    assert acc.landing_margin(0.0, 0.05) == 0.05  # nothing measured: as configured
+    for k in range(20):  # answers 5-60 ms past their deadline of 0.15 s (a busy machine)
+        acc.plan_answered(1.0 + k * 0.1, asked=1.0 + k * 0.1 - 0.15 - 0.005 * (k % 12 + 1), deadline=0.15)
+    margin = acc.landing_margin(3.0, 0.05)
+    assert 0.06 < margin < 0.08  # the 90th percentile of the overruns plus 10 ms
+    acc.plan_answered(3.1, asked=3.1 - 5.0, deadline=0.15)  # one stall: never more than 0.25 s extra
+    for k in range(30):
+        acc.plan_answered(3.2, asked=3.2 - 5.0, deadline=0.15)
+    assert acc.landing_margin(3.3, 0.05) == pytest.approx(0.30)
+    assert acc.report(3.3)["plan_overrun"]["n"] == 51
+    assert acc.landing_margin(20.0, 0.05) == 0.05  # out of the window: back to the configured margin

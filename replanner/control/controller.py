@@ -269,7 +269,7 @@ class Controller:
         now, goal = self.clock(), self._handle.goal
         land, base = None, None
         if self.moves.timeline.moving(now):
-            land = now + deadline + self.cfg.splice_margin
+            land = now + deadline + self.latency.landing_margin(now, self.cfg.splice_margin)
             base = self.moves.timeline.active(land)  # running then (a slow-down may take over first)
             start_q = base[1].state_at(land - base[0])[0]
         else:
@@ -286,11 +286,11 @@ class Controller:
             self._job = None
 
     def _on_answer(self, answer: PlanAnswer) -> None:
-        job = answer.job
-        if self._job is not job:
+        if self._job is not (job := answer.job):
             return  # canceled or superseded
-        self._job = None
-        now = self.clock()
+        self._job, now = None, self.clock()
+        if job.land is not None:
+            self.latency.plan_answered(now, job.requested, job.deadline)
         if answer.error is None and job.land is not None and now > job.land - 0.002:
             late = TrajectoryError(f"the plan arrived {now - job.land:.3f} s after its landing time")
             answer = PlanAnswer(job, error=late)

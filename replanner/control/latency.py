@@ -14,7 +14,17 @@ from collections import deque
 
 import numpy as np
 
-STAGES = ("sensor_to_map", "map_to_check", "check_to_command", "reaction", "joint_state_age", "check_gap")
+STAGES = (
+    "sensor_to_map",
+    "map_to_check",
+    "check_to_command",
+    "reaction",
+    "joint_state_age",
+    "check_gap",
+    "plan_overrun",
+)
+LEAD_PERCENTILE = 90.0  # of plan overruns a replan's landing time allows for
+MAX_EXTRA_LEAD = 0.25  # [s] beyond the configured margin: later than that, braking is the better answer
 
 
 class Window:
@@ -99,6 +109,19 @@ class LatencyAccount:
     def joint_state(self, now: float, stamp: float) -> None:
         with self._lock:
             self.stages["joint_state_age"].add(now, now - stamp)
+
+    def plan_answered(self, now: float, asked: float, deadline: float) -> None:
+        """A replan's answer arrived at `now`, asked at `asked` with a planning budget of `deadline` [s]."""
+        with self._lock:
+            self.stages["plan_overrun"].add(now, now - asked - deadline)
+
+    def landing_margin(self, now: float, margin: float) -> float:
+        """[s] after a replan's deadline its landing time lies: `margin`, or more when answers have been arriving
+        later than that (a busy machine), so the next one lands in time instead of failing as late."""
+        with self._lock:
+            o = self.stages["plan_overrun"].values(now)
+        late = float(np.percentile(o, LEAD_PERCENTILE)) + 0.01 if len(o) else 0.0
+        return min(max(margin, late), margin + MAX_EXTRA_LEAD)
 
     def reaction_time(self, now: float) -> float:
         """T_r [s]: the `percentile` of frame stamp → checked plus that of check → command (at least `floor`),

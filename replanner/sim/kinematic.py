@@ -1,13 +1,16 @@
 """The controller on a kinematic robot, with cameras rendered by pybullet: try it without a physics simulator.
 
-Everything runs in one process: the kinematic driver thread, a camera thread (pybullet renders, the
-perception pipeline integrates, the controller hears of the new map) and the controller thread.
+The kinematic driver thread, a camera thread (the perception pipeline integrates, the controller hears of the new
+map) and the controller thread share this process; pybullet renders the cameras in a child process, as real
+cameras are other devices (pybullet holds the interpreter while it renders: tens of ms in which no thread of the
+controller could run).
 Obstacles added here exist only in pybullet: the controller learns of them through the cameras.
 """
 
 from __future__ import annotations
 
 import logging
+import multiprocessing as mp
 import threading
 import time
 
@@ -58,14 +61,14 @@ class KinematicSim:
         self.perception, self.controller = st.perception, st.controller
         self.driver.subscribe(st.on_joint_state)
         self._pb_lock = threading.Lock()
-        self.scene = PyBulletScene(self.robot, draw_collision=True)
+        self.scene = PyBulletScene(self.robot)  # the ground truth benches measure with (the renderer has its own)
         for name, shape, pose in static:
             self.scene.add(name, shape, pose)
-        self.cameras = []
-        if self.perception is not None:
-            for s in cfg.perception.sensors:
-                cam = PyBulletDepthCamera(self.scene.client, CameraModel.from_config(s), pose_from_config(s.pose))
-                self.cameras.append((s.name, cam))
+        self.sensors = [s.name for s in cfg.perception.sensors] if self.perception is not None else []
+        ctx = mp.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._send_lock = threading.Lock()
+        self._renderer = ctx.Process(target=_render, args=(child, cfg, list(static)), name="cameras", daemon=True)
         self.camera_rate = camera_rate
         self.cameras_on = True
         self.map_updates: list[tuple[float, int]] = []  # (time, occupied voxels)
@@ -73,29 +76,40 @@ class KinematicSim:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
 
+    def _tell(self, *msg) -> None:
+        with self._send_lock:
+            self._conn.send(msg)
+
     # ------------------------------------------------------------------ obstacles only the cameras see
     def add_obstacle(self, name: str, shape: Shape, pose: np.ndarray) -> None:
         with self._pb_lock:
             self.scene.add(name, shape, pose)
+        self._tell("add", name, shape, pose)
 
     def move_obstacle(self, name: str, pose: np.ndarray) -> None:
         with self._pb_lock:
             self.scene.move(name, pose)
+        self._tell("move", name, pose)
 
     def remove_obstacle(self, name: str) -> None:
         with self._pb_lock:
             self.scene.remove(name)
+        self._tell("remove", name)
 
     # ------------------------------------------------------------------ running
     def start(self) -> KinematicSim:
         self.driver.start()
         self.controller.start()
-        if self.cameras:
+        if self.sensors:
+            self._renderer.start()
+            if not self._conn.poll(120.0):
+                raise RuntimeError("the camera renderer did not start within 120 s")
+            self._conn.recv()  # ready
             t = threading.Thread(target=self._camera_loop, name="cameras", daemon=True)
             t.start()
             self._threads.append(t)
         deadline = time.monotonic() + 5.0
-        while self.cameras and not self.map_updates and time.monotonic() < deadline:
+        while self.sensors and not self.map_updates and time.monotonic() < deadline:
             time.sleep(0.01)
         return self
 
@@ -103,6 +117,11 @@ class KinematicSim:
         self._stop.set()
         for t in self._threads:
             t.join(timeout=3.0)
+        if self._renderer.is_alive():
+            self._tell("stop")
+            self._renderer.join(timeout=5.0)
+            if self._renderer.is_alive():
+                self._renderer.kill()
         self.stack.close()
         self.driver.stop()
         with self._pb_lock:
@@ -113,11 +132,9 @@ class KinematicSim:
         next_t = time.monotonic()
         while not self._stop.is_set():
             if self.cameras_on:
-                for name, cam in self.cameras:
-                    js = self.driver.state()
-                    with self._pb_lock:
-                        self.scene.set_q(js.position)
-                        cloud = cam.cloud()
+                js = self.driver.state()
+                self._tell("render", js.position)
+                for name, cloud in self._conn.recv():  # every camera, rendered at that joint state
                     try:
                         self.perception.integrate(
                             CloudFrame(name, js.stamp, cloud, organized=True)
@@ -135,3 +152,29 @@ class KinematicSim:
                 self._stop.wait(delay)
             else:
                 next_t = time.monotonic()
+
+
+def _render(conn, cfg: ReplannerConfig, static) -> None:
+    """The cameras' process: the robot and the objects in pybullet; renders every camera when asked."""
+    robot = RobotModel.from_config(cfg.robot)
+    scene = PyBulletScene(robot, draw_collision=True)  # collision geometry renders faster than the visual
+    for name, shape, pose in static:
+        scene.add(name, shape, pose)
+    cams = [
+        (s.name, PyBulletDepthCamera(scene.client, CameraModel.from_config(s), pose_from_config(s.pose)))
+        for s in cfg.perception.sensors
+    ]
+    conn.send("ready")
+    while True:
+        try:
+            op, *args = conn.recv()
+        except EOFError:
+            break
+        if op == "stop":
+            break
+        if op == "render":
+            scene.set_q(args[0])
+            conn.send([(name, cam.cloud()) for name, cam in cams])
+        else:
+            getattr(scene, op)(*args)  # add, move, remove
+    scene.close()
