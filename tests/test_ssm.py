@@ -142,7 +142,7 @@ def test_replans_land_later_when_answers_have_been_arriving_late():
     margin = acc.landing_margin(3.0, 0.05)
     assert 0.06 < margin < 0.08  # the 90th percentile of the overruns plus 10 ms
     acc.plan_answered(3.1, asked=3.1 - 5.0, deadline=0.15)  # one stall: never more than 0.25 s extra
-    for k in range(30):
+    for _ in range(30):
         acc.plan_answered(3.2, asked=3.2 - 5.0, deadline=0.15)
     assert acc.landing_margin(3.3, 0.05) == pytest.approx(0.30)
     assert acc.report(3.3)["plan_overrun"]["n"] == 51
