@@ -397,7 +397,7 @@ class Planner:
 
         Bounded by counts; `t_end` (a perf_counter time, the plan's deadline) may only cut it short.
         """
-        W = self._skip_waypoints(W)
+        W = self._skip_waypoints(W, t_end)
         misses = tries = 0
         while tries < self.shortcut_tries and len(W) > 2 and misses < 6 and time.perf_counter() < t_end:
             tries += 1
@@ -415,14 +415,19 @@ class Planner:
                 misses = 0
             else:
                 misses += 1
-        return self._skip_waypoints(W)
+        return self._skip_waypoints(W, t_end)
 
-    def _skip_waypoints(self, W: np.ndarray) -> np.ndarray:
-        """From each kept waypoint, go straight to the farthest later one that is reachable in a straight line."""
+    def _skip_waypoints(self, W: np.ndarray, t_end: float = math.inf) -> np.ndarray:
+        """From each kept waypoint, go straight to the farthest later one that is reachable in a straight line.
+
+        Past `t_end` (the plan's deadline) the rest of the path is kept as it is: valid, only longer."""
         keep = np.concatenate([[True], np.linalg.norm(np.diff(W, axis=0), axis=1) > 1e-9])
         W = W[keep]
         out, i = [W[0]], 0
         while i < len(W) - 1:
+            if time.perf_counter() >= t_end:
+                out.extend(W[i + 1 :])
+                break
             j = len(W) - 1
             while j > i + 1 and not self.checker.path_valid(np.array([W[i], W[j]])):
                 j -= 1
