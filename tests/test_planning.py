@@ -111,10 +111,10 @@ def test_a_start_a_hair_past_a_limit_plans_from_the_limit_a_start_far_past_is_re
 def test_goal_and_start_in_collision_name_link_and_object(planner, wall_world, panda):
     into_wall = A.copy()
     hand_at = None
-    for q0 in np.linspace(-0.5, 0.5, 41):  # swing joint 1 until the arm is in the wall
+    for q0 in np.linspace(-0.5, 0.5, 81):  # swing joint 1 until the arm is in the wall (not only its padding)
         into_wall[0] = q0
         c = wall_world[1].check(into_wall)
-        if c is not None and c.other == "wall":
+        if c is not None and c.other == "wall" and wall_world[1].clearance(into_wall, 0.05).distance <= 0:
             hand_at = into_wall.copy()
             break
     assert hand_at is not None
@@ -167,3 +167,48 @@ def test_ik_solves_reachable_poses_and_fails_fast_on_unreachable(panda, panda_cf
     with pytest.raises(IKError, match="beyond"):
         solve_ik(panda, "panda_grasptarget", far, checker=checker, rng=rng)
     assert rng.bit_generator.state == before  # refused before the search drew a single start
+
+
+def test_a_goal_refused_only_for_its_padding_says_how_far_and_plans_with_less(panda, panda_cfg):
+    from replanner.planning import padded_checker
+    from tests.oracle import HULL_MARGIN, PyBulletOracle
+
+    world = World(panda)
+    add_table(world)
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)  # 10 mm padding
+    hand = panda.link_pose(B, "panda_hand")[:3, 3]
+    out = np.array([hand[0], hand[1], 0.0]) / np.linalg.norm(hand[:2])
+    center = hand + 0.15 * out
+    world.add("block", Box(size=(0.06, 0.06, 0.06)), make_transform(center))
+    for _ in range(4):  # slide the block until the arm at B is 4 mm from it, as a grasp would be
+        gap = checker.clearance(B, max_distance=0.5)
+        n = (gap.point_on_robot - gap.point_on_obstacle) / np.linalg.norm(gap.point_on_robot - gap.point_on_obstacle)
+        center = center + n * (gap.distance - 0.004)
+        world.move("block", make_transform(center))
+    gap = checker.clearance(B, max_distance=0.5)
+    assert gap.obstacle == "block" and abs(gap.distance - 0.004) < 5e-4
+
+    planner = Planner.from_config(checker, panda_cfg.planning, seed=2)
+    with pytest.raises(GoalInvalid, match=rf"within the padding: .* {gap.distance * 1e3:.1f} mm from 'block'"):
+        planner.plan(A, B, deadline=2.0)
+    res = planner.plan(A, B, deadline=5.0, padding=0.002)
+    tight = padded_checker(checker, 0.002)
+    assert tight.path_resolution == pytest.approx(0.004)  # follows the padding: 2 x 2 mm
+    assert tight.check_path(res.path).valid and planner.checker is checker  # the planner's own padding is back
+    with pytest.raises(GoalInvalid, match="within the padding"):
+        planner.plan(A, B, deadline=2.0)
+    # pybullet: the unpadded arm never goes into anything along the path, sampled ten times finer than checked
+    oracle = PyBulletOracle(panda)
+    for name, obj in world.objects.items():
+        oracle.add(name, obj.shape, obj.pose)
+    allowed = {tuple(p) for p in panda_cfg.collision.allowed_contacts}
+    Q, _ = checker.interpolate(res.path, resolution=0.0004)
+    worst = np.inf
+    for q in Q:
+        oracle.set_q(q)
+        worst = min(worst, oracle.min_world_distance(0.05, allowed))
+    oracle.close()
+    assert worst > -HULL_MARGIN - 1e-4  # pybullet's hulls are 1 mm larger than ours
+    for bad in (-0.01, 0.5, float("nan")):
+        with pytest.raises(InvalidInputError, match="padding must be"):
+            planner.plan(A, B, padding=bad)

@@ -13,6 +13,7 @@ from .planner import (
     PoseGoal,
     StartInvalid,
     UnknownPlanner,
+    padded_checker,
     planner_class,
 )
 from .worker import InlineWorker, JobPurpose, PlanAnswer, PlanJob, PlanWorker, ProcessWorker, ThreadWorker
@@ -38,6 +39,7 @@ __all__ = [
     "StartInvalid",
     "ThreadWorker",
     "UnknownPlanner",
+    "padded_checker",
     "planner_class",
     "solve_ik",
 ]

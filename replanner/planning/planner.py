@@ -22,7 +22,7 @@ from ompl import geometric as og
 from ompl import util as ou
 
 from ..errors import InvalidInputError, ReplannerError
-from ..world.collision import CollisionChecker, Contact
+from ..world.collision import CollisionChecker, Contact, ContactKind
 from ..world.transforms import make_transform
 from .ik import IKError, solve_ik
 
@@ -30,6 +30,8 @@ log = logging.getLogger(__name__)
 
 ou.setLogLevel(ou.LogLevel.LOG_WARN)
 START_LIMIT_SLACK = 1e-3  # [rad] a start this far past a joint limit (an arm at its limit, measured) plans from it
+MIN_RESOLUTION = 0.002  # [m] the finest path resolution a small padding asks for (padding 0: within 1 mm)
+MAX_PADDED = 4  # checkers of other paddings a planner keeps (each builds its padded geometry once per scene)
 
 PLANNERS = {
     "RRTConnect": og.RRTConnect,
@@ -175,6 +177,35 @@ def _release_ompl() -> None:
         planner.si = planner.space = planner._mv = None
 
 
+def padded_checker(checker: CollisionChecker, padding: float) -> CollisionChecker:
+    """A checker of the same world with another padding against known objects (the map keeps its own); its path
+    resolution follows the padding, at most 2 x padding, so the unpadded robot stays clear between two checks."""
+    if not (isinstance(padding, int | float) and math.isfinite(padding) and 0.0 <= padding <= 0.2):
+        raise InvalidInputError(f"padding must be a number of metres in [0, 0.2], got {padding!r}")
+    return CollisionChecker(
+        checker.robot,
+        checker.world,
+        padding=float(padding),
+        map_padding=checker.map_padding,
+        path_resolution=min(checker.path_resolution, max(2.0 * padding, MIN_RESOLUTION)),
+        allowed_contacts=checker.allowed_contacts,
+        check_limits=checker.check_limits,
+    )
+
+
+def within_padding(checker: CollisionChecker, q: np.ndarray, contact: Contact, what: str) -> str:
+    """Why q is refused: "<what> is in collision: ...", or, when only the padding is touched, how far it is."""
+    if contact.kind is ContactKind.WORLD and checker.padding > 0:
+        gap = checker.clearance(q, max_distance=checker.padding)
+        if gap.distance > 0 and gap.body is not None:
+            return (
+                f"{what} is within the padding: {gap.body} is {gap.distance * 1e3:.1f} mm from {gap.obstacle!r}, "
+                f"inside the {checker.padding * 1e3:.1f} mm padding; plan with padding < {gap.distance:.4f} m to "
+                "reach it"
+            )
+    return f"{what} is in collision: {contact}"
+
+
 class Planner:
     """Plans joint-space paths for one robot against the checker's world.
 
@@ -207,6 +238,7 @@ class Planner:
         seed: int | None = None,
     ):
         self.checker = checker
+        self._padded: dict[float, CollisionChecker] = {}
         self.robot = checker.robot
         planner_class(planner)  # raises on an unknown name
         self.default_planner = planner
@@ -307,17 +339,39 @@ class Planner:
             raise GoalInvalid(f"goal must be one configuration of {r.dof} joints, got shape {q.shape}")
         contact = self.checker.check(q)
         if contact is not None:
-            raise GoalInvalid(f"goal is in collision: {contact}", contact)
+            raise GoalInvalid(within_padding(self.checker, q, contact, "goal"), contact)
         return q
 
     # ------------------------------------------------------------------ planning
     def plan(
-        self, start, goal, *, planner: str | None = None, deadline: float = 1.0, cancel: threading.Event | None = None
+        self,
+        start,
+        goal,
+        *,
+        planner: str | None = None,
+        deadline: float = 1.0,
+        cancel: threading.Event | None = None,
+        padding: float | None = None,
     ) -> PlanResult:
         """A collision-free path from start to goal (JointGoal, PoseGoal or an array) within `deadline` [s].
 
         `cancel`, when set from another thread, stops the search at once (raises PlanningCanceled).
+        `padding` [m]: this plan's padding against known objects (None: the checker's); the path resolution follows
+        it (see `padded_checker`). Grasps sit within a centimetre of their objects.
         """
+        if padding is None or padding == self.checker.padding:
+            return self._plan(start, goal, planner, deadline, cancel)
+        checker = self._padded.pop(padding, None) or padded_checker(self.checker, padding)
+        self._padded[padding] = checker  # most recently used last
+        while len(self._padded) > MAX_PADDED:
+            self._padded.pop(next(iter(self._padded)))
+        base, self.checker = self.checker, checker  # the callbacks read self.checker
+        try:
+            return self._plan(start, goal, planner, deadline, cancel)
+        finally:
+            self.checker = base
+
+    def _plan(self, start, goal, planner: str | None, deadline: float, cancel: threading.Event | None) -> PlanResult:
         t_begin = time.perf_counter()
         if self.seed is not None:
             _seed_ompl(self.seed)
@@ -334,7 +388,7 @@ class Planner:
         start = np.clip(start, r.limits.lower, r.limits.upper)  # a measured arm settles a hair past a limit
         contact = self.checker.check(start)
         if contact is not None:
-            raise StartInvalid(f"start is in collision: {contact}", contact)
+            raise StartInvalid(within_padding(self.checker, start, contact, "start"), contact)
         q_goal = self.resolve_goal(start, goal)
         t_end = t_begin + deadline
         if self.checker.path_valid(np.array([start, q_goal])):
