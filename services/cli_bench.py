@@ -155,6 +155,8 @@ def _print_planning(r: dict) -> None:
             f"{d['colliding_samples']} of {d['samples']}" if "samples" in d else "-",
         )
     Console().print(t)
+    over = r["deadline_overrun_ms_max"]
+    Console().print(f"slowest plan(), simplification included: {over:+.1f} ms against its deadline (+: over it)")
 
 
 @app.command("planning")
