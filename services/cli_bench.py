@@ -166,16 +166,30 @@ def bench_planning(
     per_family: int = typer.Option(25, min=1, help="Problems per scene family."),
     deadline: float | None = typer.Option(None, min=0.01, help="Planning deadline [s]; default from the config."),
     verify: bool = typer.Option(True, help="Check every trajectory at 1 kHz: limits, tube, pybullet collisions."),
+    families: str = typer.Option(
+        "all",
+        help="Comma-separated families, 'ours' (table, shelf, bin, cage) or 'standard' (bookshelf_small, "
+        "bookshelf_tall, bookshelf_thin, box, table_pick, table_under_pick: grasps, planned with 2 mm padding).",
+    ),
     load: LoadOpt = 0,
     as_json: JsonOpt = False,
 ) -> None:
-    """Plan, simplify and time problems of four seeded scene families (table, shelf, bin, cage)."""
+    """Plan, simplify and time problems of seeded scene families: ours and the standard benchmark families."""
     from replanner.bench import planning
 
+    try:
+        chosen = planning.pick_families(families)
+    except ReplannerError as err:
+        fail(err)
     result = measured(
         load,
         lambda: planning.run(
-            resolve_config(config), seed=seed, per_family=per_family, deadline=deadline, verify_all=verify
+            resolve_config(config),
+            seed=seed,
+            per_family=per_family,
+            deadline=deadline,
+            verify_all=verify,
+            families=chosen,
         ),
     )
     if as_json:

@@ -212,3 +212,28 @@ def test_a_goal_refused_only_for_its_padding_says_how_far_and_plans_with_less(pa
     for bad in (-0.01, 0.5, float("nan")):
         with pytest.raises(InvalidInputError, match="padding must be"):
             planner.plan(A, B, padding=bad)
+
+
+def test_the_standard_families_grasp_their_cans_close_and_clear(panda, panda_cfg):
+    """Each standard family's goal holds its can between the fingers: clear of everything in pybullet, yet close."""
+    import pybullet as pb
+
+    from replanner.bench import planning as bench
+    from tests.oracle import HULL_MARGIN, PyBulletOracle
+
+    allowed = {tuple(p)[1] for p in panda_cfg.collision.allowed_contacts}  # the base on its table
+    for family in bench.STANDARD:
+        for p in bench.make_problems(panda, panda_cfg, family, 2, seed=4):
+            oracle = PyBulletOracle(panda)
+            for name, shape, pose in p.objects:
+                oracle.add(name, shape, pose)
+            oracle.set_q(p.goal)
+            gap = {
+                name: min((c[8] for c in pb.getClosestPoints(oracle.body, body, 0.1, physicsClientId=oracle.cid)),
+                          default=0.1)
+                for name, body in oracle.obstacles.items()
+                if name not in allowed
+            }  # fmt: skip
+            oracle.close()
+            assert p.padding == bench.GRASP_PADDING and min(gap.values()) > -HULL_MARGIN, (family, gap)
+            assert gap[p.target] < 0.03, (family, p.target, gap[p.target])  # a grasp, not a pose somewhere near it

@@ -42,7 +42,7 @@ def fd_ratios(q: np.ndarray, limits) -> tuple[float, float, float]:
 def planned(panda, panda_cfg):
     """Two problems of each bench family: (problem, checker, path)."""
     out = []
-    for family in bench.FAMILIES:
+    for family in bench.OURS:
         for p in bench.make_problems(panda, panda_cfg, family, 2, seed=11):
             stack = build_stack(panda_cfg, robot=panda, static=p.objects, seed=5, cameras=False)
             res = stack.planner.plan(p.start, p.goal, deadline=3.0)

@@ -9,21 +9,37 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import ReplannerConfig
-from ..errors import ReplannerError
+from ..errors import InvalidInputError, ReplannerError
 from ..planning.ik import IKError, solve_ik
-from ..planning.planner import PlanningError
+from ..planning.planner import PlanningError, padded_checker
 from ..stack import build_stack
 from ..stats import summary
 from ..trajectory import Trajectory, distance_to_polyline
 from ..world.geometry import Box, Cylinder, Shape
 from ..world.robot import RobotModel
 from ..world.transforms import make_transform
+from .families import GRASP_PADDING, STANDARD, standard_scene
 from .scenes import TABLE_SIZE
 
-FAMILIES = ("table", "shelf", "bin", "cage")
+OURS = ("table", "shelf", "bin", "cage")
+FAMILIES = OURS + STANDARD
 TIP = "panda_grasptarget"
 DOWN = (1.0, 0.0, 0.0, 0.0)  # tool z pointing down
 FORWARD = (0.0, 0.7071068, 0.0, 0.7071068)  # tool z pointing along +x
+
+
+def pick_families(spec: str) -> tuple[str, ...]:
+    """'all', 'ours', 'standard' or comma-separated family names; raises InvalidInputError naming the known ones."""
+    named = {"all": FAMILIES, "ours": OURS, "standard": STANDARD}
+    if spec in named:
+        return named[spec]
+    out = tuple(f.strip() for f in spec.split(",") if f.strip())
+    unknown = [f for f in out if f not in FAMILIES]
+    if unknown or not out:
+        raise InvalidInputError(
+            f"unknown families {unknown or [spec]}: choose from {', '.join(FAMILIES)}, or all, ours, standard"
+        )
+    return out
 
 
 @dataclass
@@ -33,6 +49,8 @@ class Problem:
     objects: list[tuple[str, Shape, np.ndarray]]
     start: np.ndarray
     goal: np.ndarray
+    padding: float | None = None  # [m] this problem's padding (None: the config's)
+    target: str | None = None  # the object the goal grasps
 
 
 def _yaw(q_xyzw, yaw: float):
@@ -134,6 +152,10 @@ def make_problems(robot: RobotModel, cfg: ReplannerConfig, family: str, n: int, 
     """`n` problems of a family; each has its own seeded scene, and a valid start and goal."""
     rng = np.random.default_rng([seed, FAMILIES.index(family)])
     problems = []
+    while len(problems) < n and family in STANDARD:
+        problem = _standard_problem(robot, cfg, family, len(problems), rng)
+        if problem is not None:
+            problems.append(problem)
     while len(problems) < n:
         objects, regions = _family_objects(family, rng)
         checker = build_stack(cfg, robot=robot, static=objects, cameras=False).checker
@@ -153,6 +175,29 @@ def make_problems(robot: RobotModel, cfg: ReplannerConfig, family: str, n: int, 
                 continue
         problems.append(Problem(family, len(problems), objects, start, goal))
     return problems
+
+
+def _standard_problem(robot, cfg, family: str, index: int, rng) -> Problem | None:
+    """A scene of a standard family; the start near the robot's home, the goal a grasp of one of its cans."""
+    objects, targets = standard_scene(family, rng)
+    objects = _table() + objects
+    checker = padded_checker(build_stack(cfg, robot=robot, static=objects, cameras=False).checker, GRASP_PADDING)
+    for _ in range(20):
+        start = np.clip(robot.home + rng.normal(0.0, 0.15, robot.dof), robot.limits.lower, robot.limits.upper)
+        if checker.is_valid(start):
+            break
+    else:
+        return None
+    if not targets:
+        return None
+    target, poses = targets[int(rng.integers(len(targets)))]
+    for k in rng.permutation(len(poses)):
+        try:
+            goal = solve_ik(robot, TIP, poses[k], checker=checker, seed=start, restarts=24, rng=rng).q
+        except IKError:
+            continue
+        return Problem(family, index, objects, start, goal, GRASP_PADDING, target[0])
+    return None
 
 
 def verify(traj: Trajectory, tube: float, sim=None, ignore=frozenset(), rate: float = 1000.0) -> dict:
@@ -207,7 +252,7 @@ def run(
             row = {"family": family, "index": p.index}
             t0 = time.perf_counter()
             try:
-                res = planner.plan(p.start, p.goal, deadline=deadline)
+                res = planner.plan(p.start, p.goal, deadline=deadline, padding=p.padding)
             except PlanningError as err:
                 row.update(success=False, reason=err.reason, plan_ms=(time.perf_counter() - t0) * 1e3)
                 rows.append(row)
