@@ -53,6 +53,46 @@ def test_a_brake_calls_off_a_motion_sent_but_not_started(panda):
         np.testing.assert_allclose(moves.timeline.state(t)[0], panda.home)
 
 
+def test_a_motion_the_robot_started_late_is_braked_from_where_the_arm_is(panda):
+    """The robot got a motion from rest 240 ms after its stamp and started it on arrival (as the CI machine saw);
+    the controller sees the measured arm behind, moves its record, and a brake then starts where the arm is."""
+    gen = TrajectoryGenerator(panda)
+    now = [10.0]
+    robot = Timeline(panda.home)
+    got = []
+    moves = Moves(panda.home, gen, lambda tr, t: got.append((tr, t)), lambda: now[0], 0.01, lambda *a, **k: None, 0.05)
+    start = moves.send_planned(gen.time(np.array([panda.home, panda.home + 0.6])))
+    robot.receive(got[-1][0], start, start + 0.24)  # arrived late to a robot at rest: started on arrival
+    now[0] = start + 0.27  # the robot is 30 ms into it; the controller's record says 270 ms
+    q = robot.state(now[0] - 0.005)[0]  # a joint state 5 ms old
+    assert moves.resync(q, now[0]) is q
+    stop = moves.brake()
+    robot.add(*got[-1])
+    t0 = got[-1][1]
+    q3 = [robot.state(t0 - k * 0.001)[0] for k in (0, 1, 2)]
+    jump = np.abs(q3[0] - 2 * q3[1] + q3[2]).max()  # the second difference: a jump, not the motion's own step
+    assert jump < 2e-3  # the brake starts where the arm is, to a joint state's age (without the resync: see below)
+    assert np.abs(stop.state_at(0.0)[0] - robot.state(t0 - 1e-6)[0]).max() < 3e-3  # 5 ms of motion: the age
+    # the same without the resync: the brake starts 240 ms further along, and the robot jumps there
+    robot2, got2 = Timeline(panda.home), []
+    blind = Moves(panda.home, gen, lambda tr, t: got2.append((tr, t)), lambda: now[0], 0.01, lambda *a, **k: None, 0.05)
+    now[0] = 10.0
+    s1 = blind.send_planned(gen.time(np.array([panda.home, panda.home + 0.6])))
+    robot2.receive(got2[-1][0], s1, s1 + 0.24)
+    now[0] = s1 + 0.27
+    blind.brake()
+    robot2.add(*got2[-1])
+    t1 = got2[-1][1]
+    q3 = [robot2.state(t1 - k * 0.001)[0] for k in (0, 1, 2)]
+    assert np.abs(q3[0] - 2 * q3[1] + q3[2]).max() > 0.05
+    # a robot on time is left alone
+    on_time = Moves(panda.home, gen, lambda tr, t: None, lambda: now[0], 0.01, lambda *a, **k: None, 0.05)
+    s2 = on_time.send_planned(gen.time(np.array([panda.home, panda.home + 0.6])))
+    now[0] = s2 + 0.27
+    on_time.resync(on_time.timeline.state(now[0] - 0.02)[0], now[0])  # 20 ms behind: a joint state's age and lag
+    assert on_time.timeline.segments()[-1][0] == s2
+
+
 class VirtualClock:
     """A clock only the test moves: the driver's waits advance it (no wall time involved)."""
 

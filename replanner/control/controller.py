@@ -381,10 +381,9 @@ class Controller:
         if self.cfg.reaction == Reaction.NONE:  # the comparison baseline: plan once, never look again
             self._reached(now)
             return
-        holding = state == State.HOLDING.value
+        holding, q = state == State.HOLDING.value, self.moves.resync(self.measured(), now)  # a late start: re-anchor
         # holding: the way to the goal, not the stretch the brake still travels
-        timeline, q = self.moves.timeline, self.measured()
-        view = self.monitor.view(timeline, now, q, to_curve_end=holding, check_gap=self._check_gap)
+        view = self.monitor.view(self.moves.timeline, now, q, to_curve_end=holding, check_gap=self._check_gap)
         if view is None:
             return
         if holding:

@@ -12,6 +12,9 @@ from .timeline import Timeline
 
 log = logging.getLogger(__name__)
 
+LATE_START = 0.1  # [s] a motion from rest this far behind its stamp on the measured arm was started late
+FOLLOWING = 0.01  # [rad] the measured arm this close to the path is following it
+
 
 class Moves:
     """Sends trajectories and keeps the same timeline the robot follows.
@@ -53,6 +56,27 @@ class Moves:
         start = self.clock() + self.lead if land is None else land
         self.send(traj, start)
         return start
+
+    def resync(self, q, now: float):
+        """The measured arm `q` [rad] well behind a motion from rest that should be under way: the robot got it
+        late and started it on arrival, so the record is moved to when it started (every brake, slow-down and splice
+        is then computed from where the arm is, not from where it would be). Returns q."""
+        seg = self.timeline.active(now)
+        if q is None or seg is None or self.timeline.later(now):
+            return q
+        start, traj = seg
+        t = now - start
+        if not (LATE_START < t < min(traj.duration, 1.0)) or np.abs(traj.state_at(0.0)[1]).max() > 1e-6:
+            return q
+        ts = np.arange(0.0, t, 0.005)
+        gap = np.linalg.norm(traj.evaluate(ts, order=0)[0] - q, axis=1)
+        ts = np.linspace(max(ts[np.argmin(gap)] - 0.005, 0.0), ts[np.argmin(gap)] + 0.005, 21)  # then finer
+        gap = np.linalg.norm(traj.evaluate(ts, order=0)[0] - q, axis=1)
+        k = int(np.argmin(gap))
+        if t - ts[k] > LATE_START and gap[k] < FOLLOWING:
+            self.timeline.shift(traj, start + t - ts[k])
+            self.log_event("resync", late=round(t - ts[k], 3))
+        return q
 
     def speed_factor(self) -> float | None:
         """The share of its nominal speed the running motion is timed at, or None at rest."""

@@ -49,6 +49,12 @@ class Timeline:
         self.add(traj, start)
         return 0.0
 
+    def shift(self, traj: Timed, start: float) -> None:
+        """`traj` runs from `start` after all (a robot that got it late started it then); later segments stay."""
+        with self._lock:
+            moved = [((start if tr is traj else s), tr) for s, tr in self._segments]
+            self._segments = sorted(moved, key=lambda seg: seg[0])
+
     def segments(self) -> list[tuple[float, Timed]]:
         """(start, trajectory) pairs in start order."""
         with self._lock:
