@@ -68,6 +68,7 @@ class MapPathCheck(Check):
     def __init__(self, checker: CollisionChecker):
         self.checker = checker
         self._clear_of: tuple | None = None  # (path key, map) the path was last found clear of
+        self._blocked: tuple | None = None  # (path key, verdict) of the last path found blocked
 
     def __call__(self, view: MotionView, fresh: bool = False) -> Verdict:
         occ = self.checker.world.snapshot().occupancy
@@ -82,7 +83,15 @@ class MapPathCheck(Check):
         else:
             clear = self.checker.path_valid(view.path, octree_only=True)
         self._clear_of = (view.key, occ) if clear else None
-        return self.clear() if clear else Verdict(self.name, False, "an obstacle is on the remaining path")
+        if clear:
+            return self.clear()
+        if self._blocked is not None and self._blocked[0] == view.key:
+            return self._blocked[1]  # the same path still blocked: where was said when it first was
+        found = self.checker.check_path(view.path, robot_pairs=False)
+        where = f" ({found.contact})" if found.contact is not None else ""
+        verdict = Verdict(self.name, False, f"an obstacle is on the remaining path{where}", found.contact)
+        self._blocked = (view.key, verdict)
+        return verdict
 
 
 def _follows(occ, before) -> bool:

@@ -108,14 +108,14 @@ class Monitor:
             window = np.arange(len(s_grid))
         i = int(window[np.argmin(np.linalg.norm(q_grid[window] - q, axis=1))])
         later = timeline.later(now)
-        key: tuple = (id(traj), to_curve_end)
+        key: tuple = (traj, to_curve_end)  # the objects, not their ids: an id is reused once its object is gone
         if later:  # a spliced trajectory takes over at its start: the old one only runs until then
             s_switch = traj.s_at(later[0][0] - start)
             upto = q_grid[i + 1 :][s_grid[i + 1 :] < s_switch]
             pts = [q[None], upto, later[0][1].state_at(0.0)[0][None]]
             for _, tr in later:
                 pts.append(self._grid(tr, False)[1])
-            key += tuple(id(tr) for _, tr in later)
+            key += tuple(tr for _, tr in later)
         else:
             pts = [q[None], q_grid[i + 1 :]]
         progress = float((s_grid[i] - s_grid[0]) / max(s_grid[-1] - s_grid[0], 1e-9))
