@@ -278,7 +278,10 @@ class TrajectoryGenerator:
         s0, v0, a0, _ = (float(x[0]) for x in traj.law.eval(np.array([t])))
         base = traj.nominal  # slow-downs of slow-downs do not compound
         lim = Limits(base.velocity * factor, base.acceleration, base.jerk)
-        law = time_law(traj.curve, lim, s0, v0, a0, traj.curve.length)
+        try:  # slowing down within the limits it runs at, as hard as the path allows
+            law = time_law(traj.curve, lim, s0, v0, a0, traj.curve.length, keep=traj.limits)
+        except TrajectoryError:  # where that cut lands badly (a stop already close): as the new limits allow
+            law = time_law(traj.curve, lim, s0, v0, a0, traj.curve.length)
         return Trajectory(traj.curve, law, lim, traj.joint_names, base)
 
     def resume(self, traj: Trajectory) -> Trajectory:

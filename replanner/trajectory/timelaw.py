@@ -168,10 +168,35 @@ class _Solver:
         return self.out
 
 
-def _speed_caps(curve: Curve, lim: Limits, s0: float, v0: float, s_end: float, end_cap: float | None):
+def min_speed_after(va: float, length: float, a: float, j: float) -> float:
+    """The lowest speed that va can slow to within `length` (rest acceleration at both ends)."""
+    if min_distance(va, 0.0, a, j) <= length:
+        return 0.0
+    lo, hi = 0.0, va
+    for _ in range(40):
+        mid = (lo + hi) / 2
+        if min_distance(va, mid, a, j) <= length:
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+def _speed_caps(
+    curve: Curve,
+    lim: Limits,
+    s0: float,
+    v0: float,
+    s_end: float,
+    end_cap: float | None,
+    keep: Limits | None = None,
+    a0: float = 0.0,
+):
     """Pieces ks from s0 to s_end, their bounds, edges, and the highest speed at each edge the arm can slow down from.
 
     end_cap: the speed allowed at s_end (0: come to rest there; None: the last piece's own speed bound).
+    keep: the limits the arm is running at when `lim` is lower (a slow-down): until it can have slowed down to `lim`,
+        braking as hard as each piece allows, a piece keeps the speed the arm can still have there (within `keep`).
     """
     first = int(curve.piece_at(np.array([s0]))[0])
     last = int(curve.piece_at(np.array([s_end - 1e-12]))[0])
@@ -179,12 +204,17 @@ def _speed_caps(curve: Curve, lim: Limits, s0: float, v0: float, s_end: float, e
     bounds = bounds_of(curve.pieces[first : last + 1], lim).tolist()
     edges = [s0] + [float(curve.starts[k + 1]) for k in ks[:-1]] + [s_end]
     n = len(ks)
+    if keep is not None and v0 > bounds[0][0]:
+        ks, bounds, edges = _slowing(curve, ks, bounds, edges, keep, v0, a0)
+        n = len(ks)
     cap = np.empty(n + 1)
     cap[0] = v0
     for i in range(1, n):
         cap[i] = min(bounds[i - 1][0], bounds[i][0])
     cap[n] = bounds[-1][0] if end_cap is None else end_cap
     for i in range(1, n):  # two pieces meeting at an angle (an unblended corner): come to rest there
+        if ks[i - 1] == ks[i]:
+            continue  # one piece in two parts (see _slowing)
         before = curve.pieces[ks[i - 1]]
         t_in = before.eval(np.array([before.length]), 1)[0]
         t_out = curve.pieces[ks[i]].eval(np.array([0.0]), 1)[0]
@@ -194,6 +224,35 @@ def _speed_caps(curve: Curve, lim: Limits, s0: float, v0: float, s_end: float, e
         vmax, amax, jmax = bounds[i]
         cap[i] = min(cap[i], max_speed(cap[i + 1], edges[i + 1] - edges[i], amax, jmax, max(cap[i], cap[i + 1])))
     return ks, bounds, edges, cap
+
+
+def _slowing(curve: Curve, ks, bounds, edges, keep: Limits, v0: float, a0: float):
+    """ks, bounds, edges for an arm at v0 above `bounds` (a slow-down): braking as hard as each piece allows (within
+    the limits it runs at, `keep`), it keeps the speed it can still have until it is down to a piece's own bound;
+    that piece is cut there, the rest of it at its own bound."""
+    old = bounds_of([curve.pieces[k] for k in ks], keep).tolist()
+    env = v0 + (a0 * a0 / (2.0 * old[0][2]) if a0 > 0 else 0.0)  # speeding up, it gains a^2 / 2j first
+    nk, nb, ne = [], [], [edges[0]]
+    for i, k in enumerate(ks):
+        length = edges[i + 1] - edges[i]
+        if env <= bounds[i][0]:  # slowed down: the rest as timed at the new limits
+            nk += ks[i:]
+            nb += bounds[i:]
+            ne += edges[i + 1 :]
+            break
+        b = [max(bounds[i][0], min(env, old[i][0])), min(bounds[i][1], old[i][1]), min(bounds[i][2], old[i][2])]
+        need = min_distance(env, bounds[i][0], b[1], b[2]) / 0.8  # with slack: not to the last mm
+        if need < length:
+            nk += [k, k]
+            nb += [b, bounds[i]]
+            ne += [edges[i] + need, edges[i + 1]]
+            env = 0.0
+            continue
+        nk.append(k)
+        nb.append(b)
+        ne.append(edges[i + 1])
+        env = min_speed_after(env, 0.8 * length, b[1], b[2])
+    return nk, nb, ne
 
 
 def entry_speed(curve: Curve, lim: Limits, pieces: int) -> float:
@@ -207,9 +266,14 @@ def entry_speed(curve: Curve, lim: Limits, pieces: int) -> float:
     return min(vmax, max_speed(cap[1], edges[1] - edges[0], amax, jmax, vmax))
 
 
-def time_law(curve: Curve, lim: Limits, s0: float, v0: float, a0: float, s_end: float) -> TimeLaw:
-    """Jerk-limited s(t) from (s0, v0, a0) to rest at s_end, piece by piece, never backwards."""
-    ks, bounds, edges, cap = _speed_caps(curve, lim, s0, v0, s_end, 0.0)
+def time_law(
+    curve: Curve, lim: Limits, s0: float, v0: float, a0: float, s_end: float, keep: Limits | None = None
+) -> TimeLaw:
+    """Jerk-limited s(t) from (s0, v0, a0) to rest at s_end, piece by piece, never backwards.
+
+    keep: the limits the arm runs at now, if higher than `lim`: it slows down to `lim` within them (see _speed_caps).
+    """
+    ks, bounds, edges, cap = _speed_caps(curve, lim, s0, v0, s_end, 0.0, keep, a0)
     n = len(ks)
     for i in range(1, n):  # forward: able to speed up in time
         vmax, amax, jmax = bounds[i - 1]
