@@ -331,3 +331,17 @@ def test_bad_goals_are_rejected_and_change_nothing(make_sim, goal, match):
 def test_malformed_goals_cannot_be_made(make, match):
     with pytest.raises(InvalidInputError, match=match):
         make()
+
+
+def test_a_held_arm_resumes_only_once_every_camera_has_looked_again():
+    """Cameras may disagree on a voxel frame by frame: a path is clear when each has had a new look since it was
+    first seen clear, not after a few checks between two frames of one camera."""
+    from replanner.control.liveness import Liveness
+
+    live = Liveness(("front", "side"), joint_state_timeout=0.2, sensor_timeout=0.5)
+    assert not live.seen_all_since(10.0)  # no frames yet
+    live.sensor(10.02, "front")
+    assert not live.seen_all_since(10.0)  # the side camera has not looked since
+    live.sensor(10.07, "side")
+    assert live.seen_all_since(10.0) and not live.seen_all_since(10.05)
+    assert Liveness((), 0.2, 0.5).seen_all_since(10.0)  # without cameras the checks decide alone

@@ -97,7 +97,7 @@ class Controller:
         self._last_check = -math.inf
         self._check_gap = 0.0  # recent gap between checks, decaying [s]
         self._retry_at: float | None = None
-        self._clear_count = 0
+        self._clear_count, self._clear_since = 0, 0.0  # checks in a row the path was clear, since when
         self._pending_since = self._hold_since = self._hold_planned = 0.0
         self._settle_until = math.inf
         self._resumable = True  # held on its own path: it may resume it once clear
@@ -440,16 +440,17 @@ class Controller:
                 self._set_speed(min(speed_factor, self.cfg.pending_speed_factor))
 
     def _check_holding(self, now: float, view) -> None:
-        moving = self.moves.timeline.moving(now)
-        clear = self.monitor.check_path(view).clear
+        moving, clear = self.moves.timeline.moving(now), self.monitor.check_path(view).clear
+        self._clear_since = now if clear and self._clear_count == 0 else self._clear_since
         self._clear_count = self._clear_count + 1 if clear else 0
         room = moving or self.monitor.check_speed(view, 0.1).blocking is None  # may it move (people near)? at rest
-        if self._resumable and self._clear_count >= self.cfg.clear_checks and not moving and room:
+        # clear for some checks and in a new frame of every camera (cameras may disagree on a voxel, frame by frame)
+        seen = self._clear_count >= self.cfg.clear_checks and self.liveness.seen_all_since(self._clear_since)
+        if self._resumable and seen and not moving and room:
             # everything that can block, nothing remembered, people's distance fresh: no resume into a blocked path
             final = self.monitor.check_path(view, fresh=True).blocking
             speed = self.monitor.check_speed(view)  # and not one the next check holds again (a hold-resume flap)
-            share = self.cfg.speed_separation.min_speed_share
-            if final is None and speed.blocking is None and speed.speed_factor >= share:
+            if final is None and not speed.blocking and speed.speed_factor >= self.cfg.speed_separation.min_speed_share:
                 self.moves.resume()
                 self.resume(reason=f"the path was clear for {self._clear_count} checks")
                 return

@@ -25,6 +25,10 @@ class Liveness:
     def sensor(self, now: float, name: str) -> None:
         self._seen[name] = now
 
+    def seen_all_since(self, t: float) -> bool:
+        """Every camera has delivered a frame since time t [s] (True without cameras)."""
+        return all(self._seen.get(s, -math.inf) > t for s in self.sensors)
+
     def silent(self, now: float, ready: bool = False) -> str | None:
         """Why the inputs cannot be trusted now, or None. ready: phrased for refusing a new goal."""
         js = self.last_js
