@@ -357,11 +357,15 @@ class Planner:
 
         `cancel`, when set from another thread, stops the search at once (raises PlanningCanceled).
         `padding` [m]: this plan's padding against known objects (None: the checker's); the path resolution follows
-        it (see `padded_checker`). Grasps sit within a centimetre of their objects.
+        it (see `padded_checker`). Grasps sit within a centimetre of their objects. A padding's first plan builds its
+        padded geometry before the deadline starts (the last few paddings are kept).
         """
         if padding is None or padding == self.checker.padding:
             return self._plan(start, goal, planner, deadline, cancel)
-        checker = self._padded.pop(padding, None) or padded_checker(self.checker, padding)
+        checker = self._padded.pop(padding, None)
+        if checker is None:  # a padding's first plan builds its padded geometry first, outside the deadline
+            checker = padded_checker(self.checker, padding)
+            checker.is_valid(self.robot.home)
         self._padded[padding] = checker  # most recently used last
         while len(self._padded) > MAX_PADDED:
             self._padded.pop(next(iter(self._padded)))
