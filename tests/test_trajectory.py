@@ -273,3 +273,19 @@ def test_slow_downs_from_any_state_of_a_motion_succeed_and_keep_the_limits(panda
                 tail = slow.evaluate(np.arange(0.5, slow.duration, DT))[1]
                 assert not len(tail) or (np.abs(tail) / (traj.nominal.velocity * factor)).max() <= 1.001
     assert failed <= 0.02 * tried, (failed, tried)
+
+
+def test_the_timing_kernels_never_compile_again_mid_motion(panda):
+    """A read-only limit (as the robot model holds them) or a strided view reaches the compiled kernels as the one
+    kind they were compiled for: a new kind would compile for seconds in the middle of a motion."""
+    from replanner.trajectory import Limits, Trajectory, kernels
+
+    gen = TrajectoryGenerator(panda)  # warms the kernels up
+    before = {k: len(getattr(kernels, k).signatures) for k in ("quintic_peaks", "path_bounds", "slowest_entry")}
+    lim = panda.limits  # read-only arrays
+    traj = gen.time(np.array([panda.home, panda.home + 0.4, panda.home + [0.4, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0]]))
+    held = Trajectory(traj.curve, traj.law, Limits(lim.velocity, lim.acceleration, lim.jerk), traj.joint_names)
+    slow = gen.slow_down(held, 0.3, 0.5)
+    q0, v0, _ = slow.state_at(0.2)
+    gen.splice(slow, 0.2, np.array([q0, q0 + 0.3 * v0 / np.linalg.norm(v0)]))
+    assert {k: len(getattr(kernels, k).signatures) for k in before} == before

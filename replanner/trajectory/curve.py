@@ -12,7 +12,7 @@ from abc import ABC, abstractmethod
 import numpy as np
 
 from ..errors import TrajectoryError
-from .kernels import quintic_peaks
+from .kernels import quintic_peaks, writable
 
 EPS = 1e-9
 BLEND_PARTS = 4  # a blend is timed in parts: its ends are straighter than its middle
@@ -111,9 +111,9 @@ def quintic_bounds(c: np.ndarray, ell, edges: np.ndarray) -> np.ndarray:
     c: coefficients (..., 6, dof), ell: arc scale (...,). Sampled maxima plus the change possible between samples
     (the next derivative's maximum x half the spacing).
     """
-    edges = np.ascontiguousarray(edges, dtype=float)
+    edges = writable(edges)
     lead, dof = c.shape[:-2], c.shape[-1]
-    flat = np.ascontiguousarray(c, dtype=float).reshape(-1, 6, dof)
+    flat = writable(np.reshape(c, (-1, 6, dof)))
     ells = np.array(np.broadcast_to(np.asarray(ell, dtype=float), lead).reshape(-1))  # writable: one compiled kind
     S = QuinticPiece._SAMPLES
     peak = quintic_peaks(flat, ells, edges, S, np.empty((len(flat), len(edges) - 1, 4, dof)))

@@ -11,6 +11,13 @@ import math
 import numba
 import numpy as np
 
+
+def writable(x) -> np.ndarray:
+    """x as the one array kind the kernels are compiled for (float64, C order, writable): another kind (a read-only
+    robot limit, a strided view) would compile a new version in the middle of a motion, seconds long."""
+    return np.require(x, dtype=np.float64, requirements=["C", "W"])
+
+
 STEP = 0.8  # a curved piece's speed is lowered this factor at a time ...
 STEPS = 30  # ... at most this many times (to 0.8^29 of its first guess)
 

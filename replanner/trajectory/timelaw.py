@@ -64,9 +64,9 @@ def speed_bounds(m: np.ndarray, lim: Limits, strict: bool = True) -> np.ndarray:
 
     A piece too sharply curved to be timed raises TrajectoryError, or with strict=False gets bounds 0.
     """
-    m = np.ascontiguousarray(m, dtype=float)
+    m = kernels.writable(m)
     out = np.empty((len(m), 3))
-    v, a, j = (np.ascontiguousarray(x, dtype=float) for x in (lim.velocity, lim.acceleration, lim.jerk))
+    v, a, j = (kernels.writable(x) for x in (lim.velocity, lim.acceleration, lim.jerk))
     timable = kernels.path_bounds(m, v, a, j, EPS, CURVE_SHARE, out)
     if strict and not timable.all():
         raise TrajectoryError("a path piece is too sharply curved to be timed within the joint limits")
@@ -320,5 +320,5 @@ def slowest_entry(bounds: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     bounds (L, P, 3): each piece's (speed, acceleration, jerk) bounds; lengths (L, P). What follows a chain does
     not constrain it, so this is a cheap necessary condition (closed form, all chains at once) for `entry_speed`.
     """
-    bounds = np.ascontiguousarray(bounds, dtype=float)
-    return kernels.slowest_entry(bounds, np.ascontiguousarray(lengths, dtype=float), np.empty(len(bounds)))
+    bounds = kernels.writable(bounds)
+    return kernels.slowest_entry(bounds, kernels.writable(lengths), np.empty(len(bounds)))
