@@ -23,7 +23,7 @@ CAN_HEIGHT = (0.1, 0.16)
 Obj = tuple[str, Shape, np.ndarray]
 
 
-def _placer(rng: np.random.Generator, yaw: float, dist: float):
+def _placer(yaw: float, dist: float):
     """place(name, shape, local xyz): the object posed in the scene frame (`dist` out along `yaw`)."""
     c, s = np.cos(yaw), np.sin(yaw)
     R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -55,7 +55,7 @@ def _cans(rng, place, y_range, x_range, z: float, n: int, prefix: str) -> list[t
 
 def _bookshelf(rng, *, height: float, levels: int, depth: float, board: float, width: float = 0.8):
     yaw, dist = rng.uniform(-0.6, 0.6), rng.uniform(0.6, 0.75)
-    place, grasp = _placer(rng, yaw, dist)
+    place, grasp = _placer(yaw, dist)
     objs = [
         place("back", Box(size=(board, width, height)), (depth, 0.0, height / 2)),
         place("side_l", Box(size=(depth, board, height)), (depth / 2, -width / 2, height / 2)),
@@ -76,7 +76,7 @@ def _bookshelf(rng, *, height: float, levels: int, depth: float, board: float, w
 
 def _box(rng):
     yaw, dist = rng.uniform(-0.9, 0.9), rng.uniform(0.45, 0.6)
-    place, grasp = _placer(rng, yaw, dist)
+    place, grasp = _placer(yaw, dist)
     w, d, h, t = 0.36, 0.36, rng.uniform(0.15, 0.25), 0.01
     objs = [
         place("floor", Box(size=(w, d, t)), (0.0, 0.0, t / 2)),
@@ -91,7 +91,7 @@ def _box(rng):
 
 def _table_pick(rng):
     yaw, dist = rng.uniform(-1.0, 1.0), rng.uniform(0.4, 0.55)
-    place, grasp = _placer(rng, yaw, dist)
+    place, grasp = _placer(yaw, dist)
     objs = []
     for k in range(int(rng.integers(2, 5))):  # clutter behind and beside the cans
         size = rng.uniform([0.05, 0.05, 0.1], [0.15, 0.15, 0.35])
@@ -103,7 +103,7 @@ def _table_pick(rng):
 
 def _table_under_pick(rng):
     yaw, dist = rng.uniform(-0.8, 0.8), rng.uniform(0.45, 0.55)
-    place, grasp = _placer(rng, yaw, dist)
+    place, grasp = _placer(yaw, dist)
     top, t, w, d = rng.uniform(0.3, 0.38), 0.03, 0.8, 0.5
     objs = [place("top", Box(size=(d, w, t)), (0.15, 0.0, top - t / 2))]
     for k, (x, y) in enumerate([(0.15 + sx * (d / 2 - 0.03), sy * (w / 2 - 0.03)) for sx in (-1, 1) for sy in (-1, 1)]):

@@ -118,18 +118,22 @@ def min_distance(va: float, vb: float, a: float, j: float) -> float:
     return (va + vb) / 2 * T
 
 
+def _boundary(ok, good: float, bad: float) -> float:
+    """Between a value where ok() holds and one where it does not, the last where it holds (to 40 halvings)."""
+    for _ in range(40):
+        mid = (good + bad) / 2
+        if ok(mid):
+            good = mid
+        else:
+            bad = mid
+    return good
+
+
 def max_speed(v_other: float, length: float, a: float, j: float, cap: float) -> float:
     """Highest speed (<= cap) that can change to v_other within `length`."""
     if min_distance(cap, v_other, a, j) <= length:
         return cap
-    lo, hi = min(v_other, cap), cap
-    for _ in range(40):
-        mid = (lo + hi) / 2
-        if min_distance(mid, v_other, a, j) <= length:
-            lo = mid
-        else:
-            hi = mid
-    return lo
+    return _boundary(lambda v: min_distance(v, v_other, a, j) <= length, min(v_other, cap), cap)
 
 
 class _Solver:
@@ -172,14 +176,7 @@ def min_speed_after(va: float, length: float, a: float, j: float) -> float:
     """The lowest speed that va can slow to within `length` (rest acceleration at both ends)."""
     if min_distance(va, 0.0, a, j) <= length:
         return 0.0
-    lo, hi = 0.0, va
-    for _ in range(40):
-        mid = (lo + hi) / 2
-        if min_distance(va, mid, a, j) <= length:
-            hi = mid
-        else:
-            lo = mid
-    return hi
+    return _boundary(lambda v: min_distance(va, v, a, j) <= length, va, 0.0)
 
 
 def _speed_caps(
