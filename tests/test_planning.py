@@ -169,6 +169,23 @@ def test_ik_solves_reachable_poses_and_fails_fast_on_unreachable(panda, panda_cf
     assert rng.bit_generator.state == before  # refused before the search drew a single start
 
 
+def test_ik_takes_the_seeds_own_solution_and_searches_on_when_that_one_collides(panda, panda_cfg):
+    world = World(panda)
+    add_table(world)
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    rng = np.random.default_rng(3)
+    q0 = panda.home + 0.3
+    T = panda.link_pose(q0, "panda_grasptarget")
+    res = solve_ik(panda, "panda_grasptarget", T, checker=checker, seed=q0 + 0.05, restarts=16, rng=rng)
+    assert np.abs(res.q - q0).max() < 0.1  # the descent from a nearby seed: the same arm posture, not another branch
+    # a box where the seed's descent ends: the answer must come from another restart, collision-free
+    world.add("block", Box(size=(0.12, 0.12, 0.12)), panda.link_pose(q0, "panda_link4"))
+    blocked = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    assert not blocked.is_valid(q0)
+    res = solve_ik(panda, "panda_grasptarget", T, checker=blocked, seed=q0 + 0.05, restarts=32, rng=rng)
+    assert blocked.is_valid(res.q) and np.abs(res.q - q0).max() > 0.1
+
+
 def test_a_goal_refused_only_for_its_padding_says_how_far_and_plans_with_less(panda, panda_cfg):
     from replanner.planning import padded_checker
     from tests.oracle import HULL_MARGIN, PyBulletOracle

@@ -57,7 +57,8 @@ def solve_ik(
     """A configuration placing `link` at T_target (base frame), nearest to `seed` among the valid solutions.
 
     Runs `restarts` damped-least-squares descents in one batch (from the seed and random configurations),
-    keeps those within both tolerances, within the joint limits and (with a checker) collision-free.
+    keeps those within both tolerances, within the joint limits and (with a checker) collision-free. Stops as soon
+    as the descent from the seed reaches a valid solution (the others only matter when it does not).
     """
     T_target = np.asarray(T_target, dtype=float)
     if T_target.shape != (4, 4) or not np.all(np.isfinite(T_target)):
@@ -77,6 +78,7 @@ def solve_ik(
     Q = np.vstack([np.clip(np.asarray(seeds), lim.lower, lim.upper), robot.random_q(rng, restarts - 1)])
     p_t, R_t = T_target[:3, 3], T_target[:3, :3]
     lam2 = 1e-4
+    seed_tried = False
     for _ in range(max_iterations):
         frames = robot.frames(Q)
         T = frames[:, slot] @ T_frame_link
@@ -86,6 +88,10 @@ def solve_ik(
         )
         if done.all():
             break
+        if done[0] and not seed_tried:  # the seed's own descent (nearest the start as a rule): enough if valid
+            seed_tried = True
+            if checker is None or checker.is_valid_batch(Q[:1])[0]:
+                break
         J = robot.jacobian(Q, link)
         JJt = J @ np.swapaxes(J, 1, 2) + lam2 * np.eye(6)
         dq = np.einsum("nij,nj->ni", np.swapaxes(J, 1, 2), np.linalg.solve(JJt, e[:, :, None])[..., 0])
