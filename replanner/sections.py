@@ -266,6 +266,11 @@ class PlanningConfig(Section):
     )
     tube_radius: float = Field(0.1, gt=0.0, le=1.0, description="Timed curve's max distance from the path [rad].")
     ik_restarts: int = Field(16, ge=1, le=256)
+    collision_layer: Literal["spheres", "fcl"] = Field(
+        "spheres",
+        description="What the search asks first: 'spheres' (a conservative sphere model; FCL decides what it cannot "
+        "clear and checks the returned path) or 'fcl' alone.",
+    )
     position_tolerance: float = Field(0.002, gt=0.0, description="Cartesian goal position tolerance [m].")
     orientation_tolerance: float = Field(0.02, gt=0.0, description="Cartesian goal orientation tolerance [rad].")
 
@@ -337,7 +342,9 @@ class ControllerConfig(Section):
         0.5, gt=0.0, le=1.0, description="While a replan is pending the arm goes on at this share of its speed."
     )
     hold_timeout: float = Field(10.0, gt=0.0, description="wait_and_resume gives up after holding this long [s].")
-    hold_replan_interval: float = Field(1.0, gt=0.0, description="While holding, plan anew this often [s].")
+    hold_replan_interval: float = Field(
+        1.0, gt=0.0, description="While holding, plan anew this often [s] (reaction replan: the first at once)."
+    )
     joint_state_timeout: float = Field(0.25, gt=0.0, description="Joint states silent this long: brake, fail [s].")
     sensor_timeout: float = Field(1.0, gt=0.0, description="A configured camera silent this long: brake, fail [s].")
     goal_tolerance: float = Field(0.01, gt=0.0, description="Reached when every joint is this close [rad].")

@@ -171,6 +171,9 @@ def bench_planning(
         help="Comma-separated families, 'ours' (table, shelf, bin, cage) or 'standard' (bookshelf_small, "
         "bookshelf_tall, bookshelf_thin, box, table_pick, table_under_pick: grasps, planned with 2 mm padding).",
     ),
+    layer: str = typer.Option(
+        None, help="Collision layer of the search: 'spheres' or 'fcl' (default: the config's planning.collision_layer)."
+    ),
     load: LoadOpt = 0,
     as_json: JsonOpt = False,
 ) -> None:
@@ -181,10 +184,15 @@ def bench_planning(
         chosen = planning.pick_families(families)
     except ReplannerError as err:
         fail(err)
+    cfg = resolve_config(config)
+    if layer is not None:
+        if layer not in ("spheres", "fcl"):
+            fail(ReplannerError(f"--layer must be 'spheres' or 'fcl', got {layer!r}"))
+        cfg = cfg.model_copy(update={"planning": cfg.planning.model_copy(update={"collision_layer": layer})})
     result = measured(
         load,
         lambda: planning.run(
-            resolve_config(config),
+            cfg,
             seed=seed,
             per_family=per_family,
             deadline=deadline,

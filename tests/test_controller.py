@@ -345,3 +345,22 @@ def test_a_held_arm_resumes_only_once_every_camera_has_looked_again():
     live.sensor(10.07, "side")
     assert live.seen_all_since(10.0) and not live.seen_all_since(10.05)
     assert Liveness((), 0.2, 0.5).seen_all_since(10.0)  # without cameras the checks decide alone
+
+
+def test_held_the_replan_policy_goes_round_at_once_stop_and_wait_waits_its_interval(make_sim):
+    """Both policies held by a box on the path (pending_timeout too short for a replan while moving): replan plans
+    its way round as soon as the arm stands, stop-and-wait only after hold_replan_interval."""
+    took = {}
+    for reaction in ("replan", "stop_and_wait"):
+        sim = make_sim(reaction=reaction, pending_timeout=0.01, hold_timeout=60.0, hold_replan_interval=6.0)
+        assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+        h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
+        wait_state(sim, State.MONITORING)
+        _drop_on_path(sim, after=0.3, where=0.7)
+        wait_state(sim, State.HOLDING, within=5.0)
+        held = sim.t
+        sim.run_until(lambda: sim.controller.state != State.HOLDING.value, 20.0, "a way round")
+        assert ("HOLDING", "MONITORING", "start_motion") in edges(sim), edges(sim)
+        took[reaction] = sim.t - held
+        assert result(sim, h, 30).status == GoalStatus.SUCCEEDED
+    assert took["replan"] < 3.0 < 6.0 <= took["stop_and_wait"], took

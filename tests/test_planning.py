@@ -211,7 +211,7 @@ def test_a_goal_refused_only_for_its_padding_says_how_far_and_plans_with_less(pa
     res = planner.plan(A, B, deadline=5.0, padding=0.002)
     tight = padded_checker(checker, 0.002)
     assert tight.path_resolution == pytest.approx(0.004)  # follows the padding: 2 x 2 mm
-    assert tight.check_path(res.path).valid and planner.checker is checker  # the planner's own padding is back
+    assert tight.check_path(res.path).valid and planner.checker.checker is checker  # the planner's own padding is back
     with pytest.raises(GoalInvalid, match="within the padding"):
         planner.plan(A, B, deadline=2.0)
     # pybullet: the unpadded arm never goes into anything along the path, sampled ten times finer than checked
@@ -254,3 +254,29 @@ def test_the_standard_families_grasp_their_cans_close_and_clear(panda, panda_cfg
             oracle.close()
             assert p.padding == bench.GRASP_PADDING and min(gap.values()) > -HULL_MARGIN, (family, gap)
             assert gap[p.target] < 0.03, (family, p.target, gap[p.target])  # a grasp, not a pose somewhere near it
+
+
+def test_the_sphere_layer_changes_no_verdict_so_a_seeded_plan_is_the_same_path(wall_world, panda_cfg):
+    """The layer answers only what is certain (free or in contact) and FCL the rest: OMPL sees the same verdicts,
+    so with the same seed both layers return the same path, and FCL approves it at the full resolution."""
+    world, checker = wall_world
+    shelf = Box(size=(0.25, 0.5, 0.02))
+    world.add("shelf", shelf, make_transform((0.45, -0.3, 0.45)))
+    try:
+        exact = CollisionChecker.from_config(world.robot, world, panda_cfg.collision)
+        fast = Planner.from_config(exact, panda_cfg.planning, seed=11)
+        cfg_fcl = panda_cfg.planning.model_copy(update={"collision_layer": "fcl"})
+        plain = Planner.from_config(exact, cfg_fcl, seed=11)
+        assert fast.layer == "spheres" and plain.layer == "fcl"
+        rng = np.random.default_rng(4)
+        planned = 0
+        while planned < 6:
+            a, b = world.robot.random_q(rng, 2)
+            if not (exact.is_valid(a) and exact.is_valid(b)) or exact.path_valid(np.array([a, b])):
+                continue
+            p1, p2 = fast.plan(a, b, deadline=30.0), plain.plan(a, b, deadline=30.0)
+            np.testing.assert_array_equal(p1.path, p2.path)
+            assert exact.check_path(p1.path).valid
+            planned += 1
+    finally:
+        world.remove("shelf")

@@ -324,6 +324,7 @@ def summarize(rows: list[dict], robot: str, seed: int, deadline: float, cfg) -> 
         "seed": seed,
         "deadline_s": deadline,
         "planner": cfg.planning.planner,
+        "collision_layer": cfg.planning.collision_layer,
         "tube_radius_rad": cfg.planning.tube_radius,
         "families": {f: stats([r for r in rows if r["family"] == f]) for f in families},
         "overall": stats(rows),

@@ -70,8 +70,7 @@ class Controller:
     ):
         self.robot, self.checker, self.planner, self.gen = robot, checker, planner, generator
         self.monitor, self.worker, self.cfg, self.clock = monitor, worker, cfg, clock
-        self.default_deadline = default_deadline
-        self.sensors = tuple(sensors)
+        self.default_deadline, self.sensors = default_deadline, tuple(sensors)
         if not self.sensors:
             log.warning("no cameras configured: the controller sees static objects only")
         checker.is_valid(robot.home)  # build lazily made geometry now: the first check must not stall the thread
@@ -88,20 +87,17 @@ class Controller:
         self.history = History()
         self.transitions, self.events_log = self.history.transitions, self.history.events
         self.inbox = Inbox(self._handle_input, self._tick, self._safe_stop, min(1.0 / cfg.check_rate_hz, 0.02))
-        self._job_ids = itertools.count(1)
-        self._job: PlanJob | None = None
+        self._job_ids, self._job = itertools.count(1), None  # the job in flight: a PlanJob
         self._handle: GoalHandle | None = None
         self.liveness = Liveness(self.sensors, cfg.joint_state_timeout, cfg.sensor_timeout)
         self.latency = latency or LatencyAccount()
-        self._dirty = False
-        self._last_check = -math.inf
+        self._dirty, self._last_check = False, -math.inf
         self._check_gap = 0.0  # recent gap between checks, decaying [s]
         self._retry_at: float | None = None
         self._clear_count, self._clear_since = 0, 0.0  # checks in a row the path was clear, since when
         self._pending_since = self._hold_since = self._hold_planned = 0.0
         self._settle_until = math.inf
-        self._resumable = True  # held on its own path: it may resume it once clear
-        self.last_clearance: float | None = None
+        self._resumable, self.last_clearance = True, None  # held on its own path: it may resume it once clear
 
     # ------------------------------------------------------------------ observers and history
     def _record(self, event) -> None:
@@ -458,9 +454,13 @@ class Controller:
         if now - self._hold_since > self.cfg.hold_timeout:
             self._finish(GoalStatus.FAILED, f"the path stayed blocked for {self.cfg.hold_timeout} s")
             self.give_up(reason=f"blocked for {self.cfg.hold_timeout} s")
-        elif room and not moving and self._job is None and now - self._hold_planned > self.cfg.hold_replan_interval:
+        elif room and not moving and self._job is None and now - self._hold_planned > self._hold_wait():
             self._hold_planned = now
             self._launch(JobPurpose.HOLD, self._deadline())
+
+    def _hold_wait(self) -> float:  # replan goes round as soon as the arm stands; stop-and-wait waits first
+        first = self._hold_planned == self._hold_since and self.cfg.reaction == Reaction.REPLAN
+        return 0.0 if first else self.cfg.hold_replan_interval
 
     def _reached(self, now: float) -> bool:
         if self.moves.timeline.busy(now):

@@ -14,17 +14,28 @@ import math
 import threading
 import time
 import weakref
-from dataclasses import dataclass
 
 import numpy as np
 from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
 
-from ..errors import InvalidInputError, ReplannerError
+from ..errors import InvalidInputError
 from ..world.collision import CollisionChecker, Contact, ContactKind
+from ..world.sphere_layer import FastChecker
 from ..world.transforms import make_transform
 from .ik import IKError, solve_ik
+from .types import (  # noqa: F401  (re-exported: planner.py was their home)
+    GoalInvalid,
+    JointGoal,
+    NoSolution,
+    PlanningCanceled,
+    PlanningError,
+    PlanResult,
+    PoseGoal,
+    StartInvalid,
+    UnknownPlanner,
+)
 
 log = logging.getLogger(__name__)
 
@@ -46,77 +57,6 @@ PLANNERS = {
     "BKPIECE1": og.BKPIECE1,
     "LBKPIECE1": og.LBKPIECE1,
 }
-
-
-class PlanningError(ReplannerError):
-    """Planning failed; `reason` is a short code, the message says what to change."""
-
-    reason = "failed"
-
-
-class StartInvalid(PlanningError):
-    reason = "start_invalid"
-
-    def __init__(self, message: str, contact: Contact | None = None):
-        self.contact = contact
-        super().__init__(message)
-
-
-class GoalInvalid(PlanningError):
-    reason = "goal_invalid"
-
-    def __init__(self, message: str, contact: Contact | None = None):
-        self.contact = contact
-        super().__init__(message)
-
-
-class NoSolution(PlanningError):
-    reason = "no_solution"
-
-
-class PlanningCanceled(PlanningError):
-    reason = "canceled"
-
-
-class UnknownPlanner(PlanningError, InvalidInputError):
-    reason = "unknown_planner"
-
-
-@dataclass(frozen=True)
-class JointGoal:
-    """A goal configuration [rad], one value per active joint."""
-
-    q: np.ndarray
-
-
-@dataclass(frozen=True)
-class PoseGoal:
-    """A goal pose of `link` in the base frame: position [m], quaternion (x, y, z, w), tolerances [m], [rad]."""
-
-    link: str
-    position: tuple[float, float, float]
-    quat_xyzw: tuple[float, float, float, float]
-    position_tolerance: float | None = None
-    orientation_tolerance: float | None = None
-
-
-@dataclass
-class PlanResult:
-    """A collision-free joint-space path (M, dof) from start to goal and how it was found.
-
-    Times [s]: `search_time` the search, retries included; `simplify_time` the shortcutting; `total_time` the
-    whole call (checks of start and goal, IK, search, simplification).
-    """
-
-    path: np.ndarray
-    goal: np.ndarray
-    planner: str
-    attempts: int
-    search_time: float
-    simplify_time: float
-    total_time: float
-    direct: bool = False  # the straight line was free: no search needed
-    raw_waypoints: int = 0
 
 
 def planner_class(name: str):
@@ -236,8 +176,13 @@ class Planner:
         orientation_tolerance: float = 0.02,
         search_coarseness: float = 4.0,
         seed: int | None = None,
+        collision_layer: str = "spheres",
     ):
-        self.checker = checker
+        if collision_layer not in ("spheres", "fcl"):
+            raise InvalidInputError(f"collision_layer must be 'spheres' or 'fcl', got {collision_layer!r}")
+        self.layer = collision_layer
+        self.exact = checker  # FCL: the last word on every path a plan returns
+        self.checker = self._layered(checker)
         self._padded: dict[float, CollisionChecker] = {}
         self.robot = checker.robot
         planner_class(planner)  # raises on an unknown name
@@ -279,6 +224,8 @@ class Planner:
         self.si.setMotionValidator(self._mv)
         self.si.setup()
         _LIVE.add(self)
+        if self.layer == "spheres":  # compile and build the layer now, not inside the first plan's deadline
+            self.checker.path_valid(np.array([self.robot.home, self.robot.home]))
 
     @classmethod
     def from_config(cls, checker: CollisionChecker, cfg, seed: int | None = None) -> Planner:
@@ -293,7 +240,12 @@ class Planner:
             orientation_tolerance=cfg.orientation_tolerance,
             search_coarseness=cfg.search_coarseness,
             seed=seed,
+            collision_layer=cfg.collision_layer,
         )
+
+    def _layered(self, checker: CollisionChecker):
+        """The checker the search asks: the sphere layer in front of FCL, or FCL alone."""
+        return FastChecker(checker) if self.layer == "spheres" else checker
 
     # ------------------------------------------------------------------ conversions
     def _to_np(self, s) -> np.ndarray:
@@ -364,7 +316,7 @@ class Planner:
             return self._plan(start, goal, planner, deadline, cancel)
         checker = self._padded.pop(padding, None)
         if checker is None:  # a padding's first plan builds its padded geometry first, outside the deadline
-            checker = padded_checker(self.checker, padding)
+            checker = self._layered(padded_checker(self.exact, padding))
             checker.is_valid(self.robot.home)
         self._padded[padding] = checker  # most recently used last
         while len(self._padded) > MAX_PADDED:
@@ -396,6 +348,7 @@ class Planner:
         q_goal = self.resolve_goal(start, goal)
         t_end = t_begin + deadline
         if self.checker.path_valid(np.array([start, q_goal])):
+            self._confirm(np.array([start, q_goal]))
             t = time.perf_counter() - t_begin
             return PlanResult(np.array([start, q_goal]), q_goal, name, 0, 0.0, 0.0, t, direct=True, raw_waypoints=2)
         t_searching = time.perf_counter()
@@ -441,9 +394,16 @@ class Planner:
         raw = len(W)
         t_simp = time.perf_counter()
         W = self.shortcut(W, t_end)
+        self._confirm(W)
         simplify_time = time.perf_counter() - t_simp
         total = time.perf_counter() - t_begin
         return PlanResult(W, q_goal, name, attempts, search_time, simplify_time, total, raw_waypoints=raw)
+
+    def _confirm(self, W: np.ndarray) -> None:
+        """FCL's own check of the path a plan returns, at path resolution (the sphere layer only ever clears)."""
+        if isinstance(self.checker, FastChecker) and not self.checker.checker.path_valid(W):
+            log.error("the sphere layer cleared a path FCL refuses: a bug, please report it with the scene")
+            raise NoSolution("the path found collides by FCL's check (sphere layer disagreement): plan again")
 
     def _solution(self, ss) -> np.ndarray:
         path = ss.getSolutionPath()

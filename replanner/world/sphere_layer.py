@@ -19,6 +19,7 @@ from .scene import WorldSnapshot
 from .spheres import cover
 
 BOX, BALL, CYLINDER = 0, 1, 2
+CONTACT, UNSURE, FREE = -1, 0, 1  # what `SphereScene.classify` says of a configuration
 
 
 def _inradius_factor() -> float:
@@ -38,7 +39,7 @@ class SphereScene:
     def __init__(self, robot, scene: CollisionScene, snap: WorldSnapshot, padding: float, map_padding: float):
         grow = _inradius_factor()
         slot, local, rad, body = [], [], [], []
-        first = [0]
+        first, in_first, in_local, in_rad = [0], [0], [], []
         for bi, b in enumerate(scene.bodies):
             sp = cover(b.raw_shape)
             s, off = robot.frame_offset(b.link)
@@ -48,6 +49,13 @@ class SphereScene:
             rad.append(sp.radius)
             body += [bi] * len(sp)
             first.append(first[-1] + len(sp))
+            ic = np.zeros((0, 3)) if sp.inner_center is None else sp.inner_center
+            in_local.append(ic @ T[:3, :3].T + T[:3, 3])
+            in_rad.append(np.zeros(0) if sp.inner_radius is None else sp.inner_radius)
+            in_first.append(in_first[-1] + len(ic))
+        self.in_local = np.ascontiguousarray(np.concatenate(in_local))
+        self.in_rad = np.concatenate(in_rad)
+        self.in_first = np.array(in_first, dtype=np.int64)
         self.slot = np.array(slot, dtype=np.int64)
         self.local = np.ascontiguousarray(np.concatenate(local))
         self.radius = np.concatenate(rad)
@@ -69,17 +77,19 @@ class SphereScene:
         self.ball_c, self.ball_r = np.array(ball_c), np.array(ball_r)
         self.ball_slot = np.array(ball_slot, dtype=np.int64)
         # obstacles: kind, world -> obstacle (3, 4), dimensions, index in the scene's obstacle list
-        kind, inv, dim, oid = [], [], [], []
+        kind, inv, dim, oid, exact = [], [], [], [], []
         names = [name for name, _ in scene.obstacles]
         for oi, name in enumerate(names):
             o = snap.objects[name]
             R, t = o.pose[:3, :3], o.pose[:3, 3]
-            if isinstance(o.shape, (Box, Sphere, Cylinder)):
+            primitive = isinstance(o.shape, (Box, Sphere, Cylinder))
+            if primitive:
                 parts = [(np.zeros(3), o.shape)]
             else:
                 sp = cover(o.shape)
                 parts = [(c, Sphere(radius=float(r))) for c, r in zip(sp.center, sp.radius)]
             for c, shape in parts:
+                exact.append(primitive)  # covering spheres reach past the object: a touch of them is not a contact
                 kind.append(BOX if isinstance(shape, Box) else BALL if isinstance(shape, Sphere) else CYLINDER)
                 inv.append(np.c_[R.T, -R.T @ (t + R @ c)])
                 if isinstance(shape, Box):
@@ -93,43 +103,37 @@ class SphereScene:
         self.ob_inv = np.array(inv, dtype=np.float64).reshape(-1, 3, 4)
         self.ob_dim = np.array(dim, dtype=np.float64).reshape(-1, 3)
         self.ob_id = np.array(oid, dtype=np.int64)
+        self.ob_exact = np.array(exact, dtype=np.bool_)
         self.env_mask = np.ascontiguousarray(scene.env_mask)
         self.octree_mask = np.ascontiguousarray(scene.octree_mask)
 
-    def clear(self, Q: np.ndarray, frames: np.ndarray, volume: VoxelVolume | None) -> np.ndarray:
-        """Which configurations Q (N, dof), with the robot's `frames` (N, 1 + dof, 4, 4), are free for certain
-        (bool (N,)); False: ask FCL."""
-        out = np.empty(len(frames), dtype=bool)
+    def classify(
+        self, Q: np.ndarray, frames: np.ndarray, volume: VoxelVolume | None, order=None, stop: bool = False
+    ) -> np.ndarray:
+        """Per configuration Q (N, dof) with the robot's `frames` (N, 1 + dof, 4, 4): FREE (free for certain),
+        CONTACT (in contact for certain: a ball inside a body meets a primitive or a ball inside another body) or
+        UNSURE (ask FCL). `order`: the configurations to look at, in turn; `stop`: return at the first CONTACT
+        (the rest stay UNSURE)."""
+        out = np.zeros(len(frames), dtype=np.int8)
         vol = volume or VoxelVolume.EMPTY
-        _clear(
-            np.ascontiguousarray(frames),
-            self.slot,
-            self.local,
-            self.radius,
-            self.body,
-            self.env_grow,
-            self.map_grow,
-            self.self_grow,
-            self.env_mask,
-            self.ob_kind,
-            self.ob_inv,
-            self.ob_dim,
-            self.ob_id,
-            self.octree_mask,
-            vol.sat,
-            vol.key_min,
-            vol.inv_res,
-            self.pair_a,
-            self.pair_b,
-            self.first,
-            self.ball_slot,
-            self.ball_c,
-            self.ball_r,
-            out,
-        )
-        if len(self.tables):
-            out &= ~self.tables.may_collide(Q).any(axis=1)
+        order = np.arange(len(frames), dtype=np.int64) if order is None else np.asarray(order, dtype=np.int64)
+        _classify(
+            np.ascontiguousarray(frames), order, stop, self.local, self.radius, self.first,
+            self.in_local, self.in_rad, self.in_first, self.ball_slot, self.ball_c, self.ball_r,
+            self.env_grow, self.map_grow, self.self_grow, self.env_mask,
+            self.ob_kind, self.ob_inv, self.ob_dim, self.ob_id, self.ob_exact,
+            self.octree_mask, vol.sat, vol.key_min, vol.inv_res, self.pair_a, self.pair_b, out,
+        )  # fmt: skip
+        if stop and (out == CONTACT).any():
+            return out
+        if len(self.tables):  # the always-close pairs: their tables may only say "maybe"
+            free = np.flatnonzero(out == FREE)
+            out[free[self.tables.may_collide(Q[free]).any(axis=1)]] = UNSURE
         return out
+
+    def clear(self, Q: np.ndarray, frames: np.ndarray, volume: VoxelVolume | None) -> np.ndarray:
+        """Which configurations are free for certain (bool (N,)); False: in contact or ask FCL."""
+        return self.classify(Q, frames, volume) == FREE
 
 
 class FastChecker:
@@ -162,8 +166,11 @@ class FastChecker:
         robot = self.checker.robot
         Q = robot.check_q(Q)
         layer, vol = self.layer()
-        out = layer.clear(Q, robot.frames(Q), vol) & robot.limits.within(Q, tol=0.0)
-        rest = np.flatnonzero(~out)
+        verdict = layer.classify(Q, robot.frames(Q), vol)
+        out = verdict == FREE
+        if self.checker.check_limits:
+            out &= robot.limits.within(Q)
+        rest = np.flatnonzero(verdict == UNSURE)
         if len(rest):
             out[rest] = self.checker.is_valid_batch(Q[rest])
         return out
@@ -171,20 +178,48 @@ class FastChecker:
     def is_valid(self, q) -> bool:
         return bool(self.is_valid_batch(np.asarray(q, dtype=float)[None])[0])
 
+    def path_valid(self, waypoints, resolution: float | None = None) -> bool:
+        """As `checker.path_valid`: every 8th interpolated configuration first (a contact is usually found early);
+        the sphere layer's certain answers stand, FCL decides the unsure ones."""
+        robot = self.checker.robot
+        Q, _ = self.checker.interpolate(waypoints, resolution)
+        if self.checker.check_limits and not robot.limits.within(Q).all():
+            return False
+        layer, vol = self.layer()
+        order = np.concatenate([np.arange(0, len(Q), 8), np.delete(np.arange(len(Q)), np.s_[::8])])
+        verdict = layer.classify(Q, robot.frames(Q), vol, order, stop=True)
+        if (verdict == CONTACT).any():
+            return False
+        rest = order[verdict[order] == UNSURE]
+        for i in range(0, len(rest), 256):
+            if not self.checker._first_invalid(Q[rest[i : i + 256]], True)[0].all():
+                return False
+        return True
+
+    def __getattr__(self, name):  # everything else (interpolate, padding, check, ...) is the checker's
+        return getattr(self.checker, name)
+
 
 class VoxelVolume:
-    """The occupancy map as a summed-volume table over its voxels' bounding box: how many voxels touch a box, in
-    eight lookups."""
+    """The occupancy map as a summed-volume table over its voxels' bounding box: how many cells touch a box, in
+    eight lookups. Cells are voxels merged `f` to an edge so the table stays under `MAX_CELLS` (a cell counts when
+    any of its voxels is occupied: coarser is only more conservative)."""
 
     EMPTY: VoxelVolume
+    MAX_CELLS = 1 << 19  # 2 MB of int32: a 2 m map at 1 cm merges 3x3x3 voxels, built in a few ms
 
     def __init__(self, keys: np.ndarray, resolution: float):
         keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
-        self.inv_res = 1.0 / resolution
         if not len(keys):
-            self.key_min = np.zeros(3, np.int64)
+            self.inv_res, self.key_min = 1.0 / resolution, np.zeros(3, np.int64)
             self.sat = np.zeros((1, 1, 1), np.int32)
             return
+        span = keys.max(axis=0) - keys.min(axis=0) + 2
+        f = 1
+        while np.prod(-(-span // f) + 1) > self.MAX_CELLS:
+            f += 1
+        keys = keys // f
+        self.inv_res = 1.0 / (resolution * f)
         self.key_min = keys.min(axis=0)
         n = keys.max(axis=0) - self.key_min + 1
         grid = np.zeros(tuple(n + 1), np.int32)
@@ -226,90 +261,124 @@ def _voxels_in(sat, key_min, inv_res, lo0, lo1, lo2, hi0, hi1, hi2):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _env_free(x, y, z, reach, b, env_mask, ob_kind, ob_inv, ob_dim, ob_id):
-    """Is a ball (centre x, y, z, radius `reach`) of body b apart from every static object it may not touch?"""
-    for o in range(ob_kind.shape[0]):
-        if not env_mask[b, ob_id[o]]:
-            continue
-        M = ob_inv[o]
-        p0 = M[0, 0] * x + M[0, 1] * y + M[0, 2] * z + M[0, 3]
-        p1 = M[1, 0] * x + M[1, 1] * y + M[1, 2] * z + M[1, 3]
-        p2 = M[2, 0] * x + M[2, 1] * y + M[2, 2] * z + M[2, 3]
-        k = ob_kind[o]
-        if k == 0:
-            q0 = max(abs(p0) - ob_dim[o, 0], 0.0)
-            q1 = max(abs(p1) - ob_dim[o, 1], 0.0)
-            q2 = max(abs(p2) - ob_dim[o, 2], 0.0)
-            d = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
-        elif k == 1:
-            d = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2) - ob_dim[o, 0]
-        else:
-            qr = max(np.sqrt(p0 * p0 + p1 * p1) - ob_dim[o, 0], 0.0)
-            qz = max(abs(p2) - ob_dim[o, 1], 0.0)
-            d = np.sqrt(qr * qr + qz * qz)
-        if d <= reach:
-            return False
-    return True
+def _distance(M, k, dim, x, y, z):
+    """Distance [m] from point (x, y, z) to a solid primitive (0 inside): kind k, world -> primitive M (3, 4)."""
+    p0 = M[0, 0] * x + M[0, 1] * y + M[0, 2] * z + M[0, 3]
+    p1 = M[1, 0] * x + M[1, 1] * y + M[1, 2] * z + M[1, 3]
+    p2 = M[2, 0] * x + M[2, 1] * y + M[2, 2] * z + M[2, 3]
+    if k == 0:
+        q0 = max(abs(p0) - dim[0], 0.0)
+        q1 = max(abs(p1) - dim[1], 0.0)
+        q2 = max(abs(p2) - dim[2], 0.0)
+        return np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
+    if k == 1:
+        return max(np.sqrt(p0 * p0 + p1 * p1 + p2 * p2) - dim[0], 0.0)
+    qr = max(np.sqrt(p0 * p0 + p1 * p1) - dim[0], 0.0)
+    qz = max(abs(p2) - dim[1], 0.0)
+    return np.sqrt(qr * qr + qz * qz)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _place(F, P, first, last, out):
+    for s in range(first, last):
+        x, y, z = P[s, 0], P[s, 1], P[s, 2]
+        for r in range(3):
+            out[s, r] = F[r, 0] * x + F[r, 1] * y + F[r, 2] * z + F[r, 3]
 
 
 @numba.njit(cache=True, nogil=True)
-def _clear(
-    frames, slot, local, rad, body, env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id,
-    octree_mask, sat, key_min, inv_res, pair_a, pair_b, first, ball_slot, ball_c, ball_r, out,
+def _classify(
+    frames, order, stop, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
+    env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+    octree_mask, sat, key_min, inv_res, pair_a, pair_b, out,
 ):  # fmt: skip
-    S, B = slot.shape[0], ball_slot.shape[0]
-    C = np.empty((S, 3))
+    B, O = ball_slot.shape[0], ob_kind.shape[0]
+    C = np.empty((local.shape[0], 3))
+    IC = np.empty((in_local.shape[0], 3))
     BC = np.empty((B, 3))
-    for n in range(frames.shape[0]):
-        for s in range(S):
-            F = frames[n, slot[s]]
-            x, y, z = local[s, 0], local[s, 1], local[s, 2]
-            for r in range(3):
-                C[s, r] = F[r, 0] * x + F[r, 1] * y + F[r, 2] * z + F[r, 3]
+    near = np.empty(O, np.int64)
+    for n in order:
         for b in range(B):
             F = frames[n, ball_slot[b]]
-            x, y, z = ball_c[b, 0], ball_c[b, 1], ball_c[b, 2]
-            for r in range(3):
-                BC[b, r] = F[r, 0] * x + F[r, 1] * y + F[r, 2] * z + F[r, 3]
-        clear = True
+            _place(F, ball_c, b, b + 1, BC)
+            _place(F, local, first[b], first[b + 1], C)
+            _place(F, in_local, in_first[b], in_first[b + 1], IC)
+        verdict = 1
         for b in range(B):
-            # the body's ball first: far from everything, its spheres need no test
             x, y, z = BC[b, 0], BC[b, 1], BC[b, 2]
-            env = _env_free(x, y, z, ball_r[b] + env_grow, b, env_mask, ob_kind, ob_inv, ob_dim, ob_id)
-            m = ball_r[b] + map_grow
-            free_map = (
-                not octree_mask[b] or _voxels_in(sat, key_min, inv_res, x - m, y - m, z - m, x + m, y + m, z + m) == 0
-            )
-            if env and free_map:
-                continue
+            m = 0  # the obstacles this body's ball meets: only they are tested sphere by sphere
+            reach = ball_r[b] + env_grow
+            for o in range(O):
+                if env_mask[b, ob_id[o]] and _distance(ob_inv[o], ob_kind[o], ob_dim[o], x, y, z) <= reach:
+                    near[m] = o
+                    m += 1
+            hit = False  # a covering sphere meets an obstacle: then maybe an inner ball does too (certain)
             for s in range(first[b], first[b + 1]):
-                x, y, z = C[s, 0], C[s, 1], C[s, 2]
-                if not env and not _env_free(x, y, z, rad[s] + env_grow, b, env_mask, ob_kind, ob_inv, ob_dim, ob_id):
-                    clear = False
+                for i in range(m):
+                    o = near[i]
+                    if _distance(ob_inv[o], ob_kind[o], ob_dim[o], C[s, 0], C[s, 1], C[s, 2]) <= rad[s] + env_grow:
+                        hit = True
+                        break
+                if hit:
                     break
-                m = rad[s] + map_grow
-                if not free_map and _voxels_in(sat, key_min, inv_res, x - m, y - m, z - m, x + m, y + m, z + m) > 0:
-                    clear = False
+            if hit:
+                verdict = 0
+                for i in range(m):
+                    o = near[i]
+                    if not ob_exact[o]:
+                        continue
+                    for k in range(in_first[b], in_first[b + 1]):
+                        if _distance(ob_inv[o], ob_kind[o], ob_dim[o], IC[k, 0], IC[k, 1], IC[k, 2]) < in_rad[k]:
+                            verdict = -1
+                            break
+                    if verdict == -1:
+                        break
+                if verdict == -1:
                     break
-            if not clear:
-                break
-        if clear:
+            if verdict == 1 and octree_mask[b]:
+                g = ball_r[b] + map_grow
+                if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
+                    for s in range(first[b], first[b + 1]):
+                        g = rad[s] + map_grow
+                        cx, cy, cz = C[s, 0], C[s, 1], C[s, 2]
+                        if _voxels_in(sat, key_min, inv_res, cx - g, cy - g, cz - g, cx + g, cy + g, cz + g) > 0:
+                            verdict = 0
+                            break
+        if verdict != -1:
             for p in range(pair_a.shape[0]):
                 ba, bb = pair_a[p], pair_b[p]
                 d0, d1, d2 = BC[ba, 0] - BC[bb, 0], BC[ba, 1] - BC[bb, 1], BC[ba, 2] - BC[bb, 2]
                 reach = ball_r[ba] + ball_r[bb] + self_grow
                 if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach:
                     continue  # the two bodies' balls are apart
+                hit = False
+                bx, by, bz, br = BC[bb, 0], BC[bb, 1], BC[bb, 2], ball_r[bb] + self_grow
                 for a in range(first[ba], first[ba + 1]):
+                    d0, d1, d2 = C[a, 0] - bx, C[a, 1] - by, C[a, 2] - bz
+                    if d0 * d0 + d1 * d1 + d2 * d2 > (rad[a] + br) ** 2:
+                        continue  # this sphere is apart from the other body's ball
                     for c in range(first[bb], first[bb + 1]):
                         d0, d1, d2 = C[a, 0] - C[c, 0], C[a, 1] - C[c, 1], C[a, 2] - C[c, 2]
                         reach = rad[a] + rad[c] + self_grow
                         if d0 * d0 + d1 * d1 + d2 * d2 <= reach * reach:
-                            clear = False
+                            hit = True
                             break
-                    if not clear:
+                    if hit:
                         break
-                if not clear:
+                if not hit:
+                    continue
+                verdict = 0
+                for a in range(in_first[ba], in_first[ba + 1]):  # two inner balls overlap: a contact for certain
+                    for c in range(in_first[bb], in_first[bb + 1]):
+                        d0, d1, d2 = IC[a, 0] - IC[c, 0], IC[a, 1] - IC[c, 1], IC[a, 2] - IC[c, 2]
+                        reach = in_rad[a] + in_rad[c]
+                        if d0 * d0 + d1 * d1 + d2 * d2 < reach * reach:
+                            verdict = -1
+                            break
+                    if verdict == -1:
+                        break
+                if verdict == -1:
                     break
-        out[n] = clear
-    return out
+        out[n] = verdict
+        if verdict == -1 and stop:
+            return

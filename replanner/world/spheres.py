@@ -19,6 +19,7 @@ from .geometry import Box, ConvexHull, Cylinder, Shape, Sphere
 
 TOLERANCE = 0.04  # [m] a sphere may reach beyond its body's face planes: tighter means more spheres
 MAX_DEPTH = 10  # halvings of a piece at most
+MIN_INNER = 0.01  # [m] smaller inner balls rarely decide a contact
 
 
 @dataclass(frozen=True)
@@ -29,17 +30,35 @@ class Spheres:
     center: np.ndarray
     radius: np.ndarray
     excess: float = 0.0
+    inner_center: np.ndarray | None = None  # spheres wholly inside the shape (a touch of one is a certain contact)
+    inner_radius: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.radius)
 
 
+_COVERS: dict[tuple[int, float, int], tuple[Shape, Spheres]] = {}  # holds the shape: its id is not reused
+
+
 def cover(shape: Shape, tolerance: float = TOLERANCE, max_depth: int = MAX_DEPTH) -> Spheres:
     """Spheres whose union contains `shape` (a concave mesh through its convex hull: still conservative); pieces
     are halved until their sphere reaches at most `tolerance` [m] beyond the shape's face planes (`max_depth`
-    halvings at most: `Spheres.excess` says how far they reach)."""
+    halvings at most: `Spheres.excess` says how far they reach). Computed once per shape object (shapes are
+    immutable; a world version reuses its robot's and objects' shapes)."""
+    key = (id(shape), float(tolerance), int(max_depth))
+    hit = _COVERS.get(key)
+    if hit is not None and hit[0] is shape:
+        return hit[1]
+    if len(_COVERS) > 4096:  # a long-running service with many edited objects: start afresh
+        _COVERS.clear()
+    out = _cover(shape, tolerance, max_depth)
+    _COVERS[key] = (shape, out)
+    return out
+
+
+def _cover(shape: Shape, tolerance: float, max_depth: int) -> Spheres:
     if isinstance(shape, Sphere):
-        return Spheres(np.zeros((1, 3)), np.array([shape.radius]))
+        return Spheres(np.zeros((1, 3)), np.array([shape.radius]), 0.0, np.zeros((1, 3)), np.array([shape.radius]))
     if isinstance(shape, Cylinder):  # its exact polytope does not exist: a prism around it does
         ring = np.linspace(0.0, 2 * np.pi, 17)[:-1]
         r = shape.radius / np.cos(np.pi / 16)
@@ -50,6 +69,8 @@ def cover(shape: Shape, tolerance: float = TOLERANCE, max_depth: int = MAX_DEPTH
         pts = corners * np.asarray(shape.size) / 2
     else:
         pts = shape.vertices
+    # inside the hull is inside the shape only for convex shapes (a mesh's hull covers its dents)
+    exact_hull = isinstance(shape, ConvexHull | Box)
     pts = np.asarray(pts, dtype=np.float64)
     body = ConvexHull.of_points(pts)
     mesh = trimesh.Trimesh(body.vertices, body.faces, process=False)
@@ -59,7 +80,17 @@ def cover(shape: Shape, tolerance: float = TOLERANCE, max_depth: int = MAX_DEPTH
     _halve(body.vertices, planes, tolerance, max_depth, centers, radii)
     center, radius = np.array(centers), np.array(radii)
     excess = float((center @ planes[:, :3].T + planes[:, 3] + radius[:, None]).max(axis=1).max())
-    return Spheres(center, radius, max(excess, 0.0))
+    inner_c, inner_r = (None, None) if exact_hull is False else _inner(center, body.vertices, planes)
+    return Spheres(center, radius, max(excess, 0.0), inner_c, inner_r)
+
+
+def _inner(center: np.ndarray, vertices: np.ndarray, planes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Balls inside a convex polytope (its face `planes`): at the cover's centres and the centroid, each as large as
+    its distance to the nearest face; those under MIN_INNER [m] are dropped."""
+    c = np.vstack([center, vertices.mean(axis=0)])
+    r = -(c @ planes[:, :3].T + planes[:, 3]).max(axis=1)
+    keep = r >= MIN_INNER
+    return c[keep], r[keep]
 
 
 def _halve(pts: np.ndarray, planes: np.ndarray, tol: float, depth: int, centers: list, radii: list) -> None:
