@@ -253,7 +253,10 @@ class PlanningConfig(Section):
     planner: str = Field("RRTConnect", description="Default OMPL planner (see replanner.planning.PLANNERS).")
     deadline: float = Field(1.0, gt=0.0, le=60.0, description="Default planning deadline [s], retries included.")
     attempt_checks: int = Field(
-        1000, ge=1, description="Validity checks per attempt before retrying with fresh random samples (a count)."
+        1000,
+        ge=1,
+        description="Validity checks of the first attempt before retrying with fresh random samples, each retry "
+        "twice as many (counts).",
     )
     shortcut_tries: int = Field(10, ge=0, description="Random shortcuts tried after the search (a count).")
     range: float | None = Field(1.5, gt=0.0, description="Planner step [rad]; null: OMPL's default.")

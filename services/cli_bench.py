@@ -55,6 +55,19 @@ def _print_collision(result: dict) -> None:
         f"{d['latency_us']['p95']:.0f} µs",
         str(d["latency_us"]["n"]),
     )
+    g = result["planning_layer"]
+    runs = f"{b['runs']} × {b['n_per_run']}"
+    t.add_row("planning layer (spheres), whole runs", f"{g['checks_per_s_median']:,.0f} /s", "-", "-", runs)
+    par = f"{g['parallel_checks_per_s_median']:,.0f} /s"
+    t.add_row(f"planning layer, whole runs on {g['cores']} cores", par, "-", "-", runs)
+    t.add_row(f"planning layer, {g['chunk']} per call", f"{g['chunked_checks_per_s_median']:,.0f} /s", "-", "-", runs)
+    t.add_row(
+        f"planning layer + FCL for the unsure ({g['unsure_to_fcl']:.0%})",
+        f"{g['with_fcl_checks_per_s_median']:,.0f} /s",
+        "-",
+        "-",
+        f"{runs}; {g['verdicts_unlike_fcl']} verdicts unlike FCL's",
+    )
     Console().print(t)
 
 

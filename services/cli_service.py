@@ -156,6 +156,9 @@ def goal(
     planner: str | None = typer.Option(None, help="OMPL planner, e.g. RRTConnect."),
     deadline: float | None = typer.Option(None, help="Planning deadline [s]."),
     velocity_scale: float = typer.Option(1.0, help="Fraction of the velocity limits, (0, 1]."),
+    padding: float | None = typer.Option(
+        None, help="Padding from known objects [m] for this goal; default: the service's collision.padding."
+    ),
     wait: bool = typer.Option(True, help="Wait for the result (else print the acceptance)."),
     timeout: float = typer.Option(60.0, min=0.1, help="How long to wait for the result [s]."),
     config: ConfigOpt = "panda",
@@ -179,7 +182,7 @@ def goal(
             q = floats(joints, "--joints") if joints is not None else None
             t0 = time.monotonic()
             fut = c.client.send_goal(
-                q, target, goal_id, planner=planner, deadline=deadline, velocity_scale=velocity_scale
+                q, target, goal_id, planner=planner, deadline=deadline, velocity_scale=velocity_scale, padding=padding
             )
             if not wait:
                 print_json({"accepted": fut.id, **fut.reply})

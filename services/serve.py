@@ -256,7 +256,7 @@ class Service:
             target = PoseGoal(p.link, p.position, p.quat_xyzw, p.position_tolerance, p.orientation_tolerance)
         else:
             target = JointGoal(np.asarray(req.joints, float))
-        goal = Goal(req.id, target, req.planner, req.deadline, req.velocity_scale, req.acceleration_scale)
+        goal = Goal(req.id, target, req.planner, req.deadline, req.velocity_scale, req.acceleration_scale, req.padding)
         q_goal = self.controller.submit(goal).accepted(timeout=10.0)
         return {"accepted": True, "id": req.id, "goal_joints": q_goal.tolist()}
 

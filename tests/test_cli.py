@@ -38,6 +38,9 @@ def test_bench_collision_json():
     assert 0 < lat["median"] <= lat["p95"] and lat["n"] == 400
     assert result["distance"]["latency_us"]["n"] == 300
     assert 0.0 < result["valid_fraction"] < 1.0
+    layer = result["planning_layer"]
+    assert layer["verdicts_unlike_fcl"] == 0 and layer["checks_per_s_median"] > 0
+    assert abs(layer["free_for_certain"] + layer["contact_for_certain"] + layer["unsure_to_fcl"] - 1.0) < 1e-9
 
 
 def test_bench_collision_table_for_iiwa_profile_by_name():

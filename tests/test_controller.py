@@ -359,8 +359,32 @@ def test_held_the_replan_policy_goes_round_at_once_stop_and_wait_waits_its_inter
         _drop_on_path(sim, after=0.3, where=0.7)
         wait_state(sim, State.HOLDING, within=5.0)
         held = sim.t
-        sim.run_until(lambda: sim.controller.state != State.HOLDING.value, 20.0, "a way round")
+        sim.run_until(lambda s=sim: s.controller.state != State.HOLDING.value, 20.0, "a way round")
         assert ("HOLDING", "MONITORING", "start_motion") in edges(sim), edges(sim)
         took[reaction] = sim.t - held
         assert result(sim, h, 30).status == GoalStatus.SUCCEEDED
     assert took["replan"] < 3.0 < 6.0 <= took["stop_and_wait"], took
+
+
+def test_a_goal_with_its_own_padding_plans_and_runs_close_to_a_known_object(make_sim):
+    """A goal 5 mm from a known block: refused at the configured 1 cm padding (the reason names the distance),
+    planned and run with padding 2 mm, and the monitor looks at that path with the same padding (no brake)."""
+    sim = make_sim()
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    hand = hand_at(sim, B)
+    z = hand[2] - 0.15
+    sim.world.add("block", Box(size=(0.1, 0.1, 0.1)), make_transform((hand[0], hand[1], z)))
+    for _ in range(4):  # lift the block until it is 5 mm below the arm at B
+        z += sim.checker.clearance(B, max_distance=0.5).distance - 0.005
+        sim.world.move("block", make_transform((hand[0], hand[1], z)))
+    gap = sim.checker.clearance(B, max_distance=0.5)
+    assert gap.obstacle == "block" and abs(gap.distance - 0.005) < 5e-4, gap
+    with pytest.raises(GoalRejected, match=r"within the padding: .* plan with padding < 0\.00"):
+        go_to(sim, B, "tight")
+    before = len(edges(sim))
+    res = go_to(sim, B, "close", within=20.0, padding=0.002, velocity_scale=SLOW)
+    assert res.status == GoalStatus.SUCCEEDED, (res, edges(sim))
+    assert edges(sim)[before:] == [("WAITING", "PLANNING", "plan"), ("PLANNING", "MONITORING", "start_motion"),
+                                   ("MONITORING", "WAITING", "succeeded")]  # fmt: skip
+    with pytest.raises(InvalidInputError, match=r"padding must be a number of metres in \[0, 0.2\]"):
+        Goal.joints("bad", B, padding=-0.01)

@@ -78,7 +78,7 @@ class Client:
     def send_goal(self, joints=None, pose: dict | None = None, goal_id: str | None = None, **options) -> GoalFuture:
         """Send a goal (joints [rad] or pose {"link", "position", "quat_xyzw", ...}); raises ServiceError if rejected.
 
-        options: planner, deadline [s], velocity_scale, acceleration_scale.
+        options: planner, deadline [s], velocity_scale, acceleration_scale, padding [m].
         """
         goal_id = goal_id or f"goal-{uuid.uuid4().hex[:8]}-{next(self._ids)}"
         body = {"id": goal_id, **{k: v for k, v in options.items() if v is not None}}

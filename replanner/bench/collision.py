@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -11,6 +12,7 @@ from ..stats import summary
 from ..world.collision import CollisionChecker
 from ..world.robot import RobotModel
 from ..world.scene import World
+from ..world.sphere_layer import CONTACT, FREE, UNSURE, FastChecker
 from .scenes import add_table, clutter_map
 
 
@@ -61,6 +63,7 @@ def run(
             valid.append(v.mean())
         if progress:
             progress(r, runs + 1)
+    layer = _layer_rates(checker, Qs, chunk)
     dist_lat = []
     for q in Qd:
         t0 = time.perf_counter_ns()
@@ -99,5 +102,54 @@ def run(
             "latency_us": summary(np.array(dist_lat)),
             "max_distance_m": 1.0,
         },
+        "planning_layer": layer,
         "bar_boolean_checks_per_s": 20_000,
+        "bar_layer_checks_per_s": 1_000_000,
+    }
+
+
+def _layer_rates(checker: CollisionChecker, Qs: list[np.ndarray], chunk: int) -> dict:
+    """The planning layer (sphere_layer) on the same configurations: its own verdicts (free / contact for certain,
+    or unsure) per second, forward kinematics included: whole runs on one core and on all, `chunk` at a time, and
+    its verdicts with FCL deciding the unsure ones (`verdicts_unlike_fcl` counts those unlike FCL's, and the
+    parallel kernel's unlike the serial one's: 0)."""
+    fast = FastChecker(checker)
+    robot = checker.robot
+    layer, vol = fast.layer()
+    whole, par, chunked, with_fcl, shares, disagree = [], [], [], [], [], 0
+    for r, Q in enumerate(Qs):
+        t0 = time.perf_counter()
+        verdict = layer.classify(Q, robot.frames(Q), vol)
+        tp = time.perf_counter()
+        disagree += int((layer.classify(Q, robot.frames(Q), vol, parallel=True) != verdict).sum())
+        t1 = time.perf_counter()
+        for i in range(0, len(Q), chunk):
+            layer.classify(Q[i : i + chunk], robot.frames(Q[i : i + chunk]), vol)
+        t2 = time.perf_counter()
+        valid = np.concatenate([fast.is_valid_batch(Q[i : i + chunk]) for i in range(0, len(Q), chunk)])
+        t3 = time.perf_counter()
+        if r > 0:  # run 0 compiles and warms up
+            whole.append(len(Q) / (tp - t0))
+            par.append(len(Q) / (t1 - tp))
+            chunked.append(len(Q) / (t2 - t1))
+            with_fcl.append(len(Q) / (t3 - t2))
+            shares.append([float((verdict == k).mean()) for k in (FREE, CONTACT, UNSURE)])
+            disagree += int((valid != checker.is_valid_batch(Q)).sum())
+    share = np.mean(shares, axis=0)
+    return {
+        "spheres": len(layer.radius),
+        "inner_balls": len(layer.in_rad),
+        "checks_per_s_median": float(np.median(whole)),
+        "checks_per_s_runs": [round(x) for x in whole],
+        "parallel_checks_per_s_median": float(np.median(par)),
+        "parallel_checks_per_s_runs": [round(x) for x in par],
+        "cores": os.cpu_count(),
+        "forward_kinematics_included": True,
+        "chunk": chunk,
+        "chunked_checks_per_s_median": float(np.median(chunked)),
+        "with_fcl_checks_per_s_median": float(np.median(with_fcl)),
+        "free_for_certain": float(share[0]),
+        "contact_for_certain": float(share[1]),
+        "unsure_to_fcl": float(share[2]),
+        "verdicts_unlike_fcl": disagree,
     }

@@ -11,11 +11,12 @@ import numpy as np
 from ..config import ReplannerConfig
 from ..errors import InvalidInputError, ReplannerError
 from ..planning.ik import IKError, solve_ik
-from ..planning.planner import PlanningError, padded_checker
+from ..planning.planner import PlanningError
 from ..stack import build_stack
 from ..stats import summary
 from ..trajectory import Trajectory, distance_to_polyline
 from ..world.geometry import Box, Cylinder, Shape
+from ..world.paddings import padded_checker
 from ..world.robot import RobotModel
 from ..world.transforms import make_transform
 from .families import GRASP_PADDING, STANDARD, standard_scene

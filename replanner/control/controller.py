@@ -219,7 +219,7 @@ class Controller:
             reason = self.liveness.silent(self.clock(), ready=True)
         if reason is None:
             try:
-                return self.planner.resolve_goal(self.measured(), handle.goal.target)
+                return self.planner.resolve_goal(self.measured(), handle.goal.target, handle.goal.padding)
             except ReplannerError as err:
                 reason = str(err)
         handle.reject(reason)
@@ -234,7 +234,7 @@ class Controller:
             self.moves.brake()
             self._finish(GoalStatus.PREEMPTED, f"preempted by goal {handle.id!r}")
         handle.accept(q_goal)
-        self._handle = handle
+        self._handle, self.monitor.padding = handle, handle.goal.padding  # the monitor looks at its path with it
         self._settle_until = math.inf
         now = self.clock()
         if self.state == State.WAITING.value and not self.moves.timeline.busy(now):
@@ -270,9 +270,9 @@ class Controller:
             start_q = base[1].state_at(land - base[0])[0]
         else:
             start_q = self.measured() if self.liveness.last_js else self.robot.home
-        scales = (goal.velocity_scale, goal.acceleration_scale)
+        rest = (goal.velocity_scale, goal.acceleration_scale, now, goal.padding)
         q_goal, job_id = self._handle.q_goal, next(self._job_ids)
-        self._job = PlanJob(job_id, purpose, start_q, q_goal, deadline, land, base, goal.planner, *scales, now)
+        self._job = PlanJob(job_id, purpose, start_q, q_goal, deadline, land, base, goal.planner, *rest)
         self.log_event("plan_requested", purpose=purpose.value, job=self._job.id)
         self.worker.submit(self._job, self.checker.world.snapshot())
 

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, ReplannerError
 from ..planning.planner import JointGoal, PoseGoal, planner_class
+from ..world.paddings import check_padding
 
 MAX_ID_LENGTH = 128
 
@@ -44,6 +45,8 @@ class Goal:
         planner: OMPL planner name; None: the configured default.
         deadline: planning budget [s], retries included; None: the configured default.
         velocity_scale, acceleration_scale: shares (0, 1] of the robot's limits.
+        padding: [m] from known objects, for this goal's plans and the monitor's look at its path (grasps sit
+            within a centimetre of their objects); None: the configured collision.padding.
     """
 
     id: str
@@ -52,6 +55,7 @@ class Goal:
     deadline: float | None = None
     velocity_scale: float = 1.0
     acceleration_scale: float = 1.0
+    padding: float | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.id, str) or not self.id or len(self.id) > MAX_ID_LENGTH:
@@ -64,6 +68,8 @@ class Goal:
             object.__setattr__(self, "deadline", _number("deadline [s]", self.deadline, 0.0, 600.0))
         object.__setattr__(self, "velocity_scale", _number("velocity_scale", self.velocity_scale, 0.0, 1.0))
         object.__setattr__(self, "acceleration_scale", _number("acceleration_scale", self.acceleration_scale, 0.0, 1.0))
+        if self.padding is not None:
+            object.__setattr__(self, "padding", check_padding(self.padding))
 
     @classmethod
     def joints(cls, id: str, q, **kw) -> Goal:

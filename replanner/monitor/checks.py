@@ -10,6 +10,7 @@ import numpy as np
 
 from ..trajectory import Trajectory, TrajectoryGenerator
 from ..world.collision import CollisionChecker, Contact
+from ..world.paddings import Paddings
 
 
 @dataclass(frozen=True, eq=False)
@@ -19,7 +20,8 @@ class MotionView:
     now: controller clock [s]; q: measured configuration [rad]; path: waypoints (M, dof) of what the arm still
     has to travel, starting at q; progress: share of the running trajectory's curve done, 0 to 1; segment:
     (start [s], trajectory) running now; key: names the trajectories the path was read from (same key, same
-    curve); check_gap: how late the next check may come [s].
+    curve); check_gap: how late the next check may come [s]; padding: the goal's padding from known objects [m]
+    (None: the checker's).
     """
 
     now: float
@@ -29,6 +31,7 @@ class MotionView:
     segment: tuple[float, Trajectory]
     key: tuple
     check_gap: float = 0.0
+    padding: float | None = None
 
 
 class Verdict(NamedTuple):
@@ -110,15 +113,16 @@ class ScenePathCheck(Check):
     name = "scene"
 
     def __init__(self, checker: CollisionChecker):
-        self.checker = checker
+        self.checker, self.paddings = checker, Paddings(checker)
         self._clear_for: tuple | None = None
 
     def __call__(self, view: MotionView, fresh: bool = False) -> Verdict:
         version = self.checker.world.snapshot().version
-        memo = (version, view.key)
+        memo = (version, view.key, view.padding)
         if not fresh and memo == self._clear_for:
             return self.clear()
-        result = self.checker.check_path(view.path, robot_pairs=False) if len(view.path) >= 2 else None
+        checker = self.paddings.get(view.padding)  # the padding the path was planned with
+        result = checker.check_path(view.path, robot_pairs=False) if len(view.path) >= 2 else None
         if result is None or result.valid:
             self._clear_for = memo
             return self.clear()
@@ -152,7 +156,7 @@ class StopRegionCheck(Check):
     only_when_blocked = True
 
     def __init__(self, checker: CollisionChecker, generator: TrajectoryGenerator, min_gap: float, brake_latency: float):
-        self.checker, self.gen = checker, generator
+        self.checker, self.gen, self.paddings = checker, generator, Paddings(checker)
         self.min_gap, self.brake_latency = min_gap, brake_latency
 
     def __call__(self, view: MotionView, fresh: bool = False) -> Verdict:
@@ -164,7 +168,8 @@ class StopRegionCheck(Check):
         if s_b - s_a < 1e-6:
             return self.clear()
         pts = traj.curve.eval(np.linspace(s_a, s_b, max(2, int((s_b - s_a) / 0.02) + 2)))
-        result = self.checker.check_path(pts, robot_pairs=False)  # along the path: the robot's pairs were checked
+        # along the path, with the padding it was planned with: the robot's pairs were checked
+        result = self.paddings.get(view.padding).check_path(pts, robot_pairs=False)
         if result.valid:
             return self.clear()
         reason = f"braking now is the last chance to stop before the obstacle ({result.contact})"

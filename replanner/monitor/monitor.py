@@ -75,6 +75,7 @@ class Monitor:
         self.stats = MonitorStats()
         self._grid_cache: dict[tuple, tuple[np.ndarray, np.ndarray, Trajectory]] = {}
         self._speed: tuple[float, Report] | None = None
+        self.padding: float | None = None  # the active goal's padding from known objects [m]: set by the controller
 
     # ------------------------------------------------------------------ the motion as it stands
     def _grid(self, traj: Trajectory, to_curve_end: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -119,7 +120,7 @@ class Monitor:
         else:
             pts = [q[None], q_grid[i + 1 :]]
         progress = float((s_grid[i] - s_grid[0]) / max(s_grid[-1] - s_grid[0], 1e-9))
-        return MotionView(now, q, np.vstack(pts), progress, seg, key, check_gap)
+        return MotionView(now, q, np.vstack(pts), progress, seg, key, check_gap, self.padding)
 
     # ------------------------------------------------------------------ checks
     def check_path(self, view: MotionView, fresh: bool = False) -> Report:

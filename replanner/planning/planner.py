@@ -22,6 +22,7 @@ from ompl import util as ou
 
 from ..errors import InvalidInputError
 from ..world.collision import CollisionChecker, Contact, ContactKind
+from ..world.paddings import Paddings, padded_checker  # noqa: F401  (padded_checker: re-exported)
 from ..world.sphere_layer import FastChecker
 from ..world.transforms import make_transform
 from .ik import IKError, solve_ik
@@ -41,8 +42,6 @@ log = logging.getLogger(__name__)
 
 ou.setLogLevel(ou.LogLevel.LOG_WARN)
 START_LIMIT_SLACK = 1e-3  # [rad] a start this far past a joint limit (an arm at its limit, measured) plans from it
-MIN_RESOLUTION = 0.002  # [m] the finest path resolution a small padding asks for (padding 0: within 1 mm)
-MAX_PADDED = 4  # checkers of other paddings a planner keeps (each builds its padded geometry once per scene)
 
 PLANNERS = {
     "RRTConnect": og.RRTConnect,
@@ -117,22 +116,6 @@ def _release_ompl() -> None:
         planner.si = planner.space = planner._mv = None
 
 
-def padded_checker(checker: CollisionChecker, padding: float) -> CollisionChecker:
-    """A checker of the same world with another padding against known objects (the map keeps its own); its path
-    resolution follows the padding, at most 2 x padding, so the unpadded robot stays clear between two checks."""
-    if not (isinstance(padding, int | float) and math.isfinite(padding) and 0.0 <= padding <= 0.2):
-        raise InvalidInputError(f"padding must be a number of metres in [0, 0.2], got {padding!r}")
-    return CollisionChecker(
-        checker.robot,
-        checker.world,
-        padding=float(padding),
-        map_padding=checker.map_padding,
-        path_resolution=min(checker.path_resolution, max(2.0 * padding, MIN_RESOLUTION)),
-        allowed_contacts=checker.allowed_contacts,
-        check_limits=checker.check_limits,
-    )
-
-
 def within_padding(checker: CollisionChecker, q: np.ndarray, contact: Contact, what: str) -> str:
     """Why q is refused: "<what> is in collision: ...", or, when only the padding is touched, how far it is."""
     if contact.kind is ContactKind.WORLD and checker.padding > 0:
@@ -152,8 +135,9 @@ class Planner:
     Args:
         checker: validity of states and motions.
         planner: default OMPL planner name (see PLANNERS).
-        attempt_checks: validity checks (states and motions) per attempt before retrying with fresh random state (a
-            count: with time enough, a seeded plan is the same on any machine; the deadline may still cut it short).
+        attempt_checks: validity checks (states and motions) of the first attempt before retrying with fresh random
+            state, each retry twice as many (counts: with time enough, a seeded plan is the same on any machine;
+            the deadline may still cut it short).
         shortcut_tries: random shortcuts tried after the search (at most; six misses in a row end it sooner).
         planner_range: planner step [rad]; None keeps OMPL's default.
         search_coarseness: motions are checked this many times coarser while searching (the result is then
@@ -183,7 +167,7 @@ class Planner:
         self.layer = collision_layer
         self.exact = checker  # FCL: the last word on every path a plan returns
         self.checker = self._layered(checker)
-        self._padded: dict[float, CollisionChecker] = {}
+        self.paddings = Paddings(checker, self._layered)
         self.robot = checker.robot
         planner_class(planner)  # raises on an unknown name
         self.default_planner = planner
@@ -258,9 +242,10 @@ class Planner:
         return st
 
     # ------------------------------------------------------------------ goals
-    def resolve_goal(self, start: np.ndarray, goal) -> np.ndarray:
-        """Goal configuration: a JointGoal's q (checked), or IK of a PoseGoal nearest the start."""
-        r = self.robot
+    def resolve_goal(self, start: np.ndarray, goal, padding: float | None = None) -> np.ndarray:
+        """Goal configuration: a JointGoal's q (checked), or IK of a PoseGoal nearest the start; `padding` [m]
+        against known objects (None: this planner's)."""
+        r, checker = self.robot, self.paddings.get(padding, self.checker)
         if isinstance(goal, PoseGoal):
             try:
                 T = make_transform(goal.position, goal.quat_xyzw)
@@ -272,7 +257,7 @@ class Planner:
                     r,
                     goal.link,
                     T,
-                    checker=self.checker,
+                    checker=checker,
                     seed=start,
                     restarts=self.ik_restarts,
                     position_tolerance=goal.position_tolerance or self.position_tolerance,
@@ -289,9 +274,9 @@ class Planner:
             raise GoalInvalid(str(err)) from None
         if q.ndim != 1:
             raise GoalInvalid(f"goal must be one configuration of {r.dof} joints, got shape {q.shape}")
-        contact = self.checker.check(q)
+        contact = checker.check(q)
         if contact is not None:
-            raise GoalInvalid(within_padding(self.checker, q, contact, "goal"), contact)
+            raise GoalInvalid(within_padding(checker, q, contact, "goal"), contact)
         return q
 
     # ------------------------------------------------------------------ planning
@@ -312,15 +297,9 @@ class Planner:
         it (see `padded_checker`). Grasps sit within a centimetre of their objects. A padding's first plan builds its
         padded geometry before the deadline starts (the last few paddings are kept).
         """
-        if padding is None or padding == self.checker.padding:
+        checker = self.paddings.get(padding, self.checker)
+        if checker is self.checker:
             return self._plan(start, goal, planner, deadline, cancel)
-        checker = self._padded.pop(padding, None)
-        if checker is None:  # a padding's first plan builds its padded geometry first, outside the deadline
-            checker = self._layered(padded_checker(self.exact, padding))
-            checker.is_valid(self.robot.home)
-        self._padded[padding] = checker  # most recently used last
-        while len(self._padded) > MAX_PADDED:
-            self._padded.pop(next(iter(self._padded)))
         base, self.checker = self.checker, checker  # the callbacks read self.checker
         try:
             return self._plan(start, goal, planner, deadline, cancel)
@@ -370,7 +349,8 @@ class Planner:
                 ob.exactSolnPlannerTerminationCondition(pdef),
                 ob.timedPlannerTerminationCondition(remaining),  # the deadline, the only clock in a plan
             )
-            self._attempt = _Attempt(ptc, self.attempt_checks, cancel)
+            # each retry may check twice as much: hard problems get big trees, easy ones stay quick
+            self._attempt = _Attempt(ptc, self.attempt_checks << min(attempts - 1, 12), cancel)
             try:
                 status = ss.solve(ptc)
             finally:

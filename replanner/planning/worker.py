@@ -56,6 +56,7 @@ class PlanJob:
     velocity_scale: float = 1.0
     acceleration_scale: float = 1.0
     requested: float = 0.0
+    padding: float | None = None  # [m] from known objects; None: the planner's
     cancel: threading.Event = field(default_factory=threading.Event, repr=False)
 
     def __getstate__(self) -> dict:  # the cancel event stays in this process
@@ -159,7 +160,9 @@ def plan_and_time(
     planner: Planner, gen: TrajectoryGenerator, job: PlanJob, cancel: threading.Event | None = None
 ) -> tuple[Trajectory, PlanResult]:
     """The work of a job: a path from its start, then timed from rest or spliced onto its base at `land`."""
-    res = planner.plan(job.start, job.q_goal, planner=job.planner, deadline=job.deadline, cancel=cancel)
+    res = planner.plan(
+        job.start, job.q_goal, planner=job.planner, deadline=job.deadline, cancel=cancel, padding=job.padding
+    )
     if job.base is not None:
         start, base = job.base
         traj = gen.splice(base, job.land - start, res.path, job.velocity_scale, job.acceleration_scale)

@@ -61,6 +61,9 @@ class GoalRequest(_Msg):
     deadline: float | None = Field(None, gt=0.0, lt=600.0, description="[s]")
     velocity_scale: float = Field(1.0, gt=0.0, le=1.0)
     acceleration_scale: float = Field(1.0, gt=0.0, le=1.0)
+    padding: float | None = Field(
+        None, ge=0.0, le=0.2, description="[m] from known objects; null: the service's collision.padding"
+    )
 
     @field_validator("joints")
     @classmethod

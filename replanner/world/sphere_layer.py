@@ -108,22 +108,32 @@ class SphereScene:
         self.octree_mask = np.ascontiguousarray(scene.octree_mask)
 
     def classify(
-        self, Q: np.ndarray, frames: np.ndarray, volume: VoxelVolume | None, order=None, stop: bool = False
+        self,
+        Q: np.ndarray,
+        frames: np.ndarray,
+        volume: VoxelVolume | None,
+        order=None,
+        stop: bool = False,
+        parallel: bool = False,
     ) -> np.ndarray:
         """Per configuration Q (N, dof) with the robot's `frames` (N, 1 + dof, 4, 4): FREE (free for certain),
         CONTACT (in contact for certain: a ball inside a body meets a primitive or a ball inside another body) or
         UNSURE (ask FCL). `order`: the configurations to look at, in turn; `stop`: return at the first CONTACT
-        (the rest stay UNSURE)."""
+        (the rest stay UNSURE). `parallel`: all of them on every core (large batches; not with order or stop)."""
         out = np.zeros(len(frames), dtype=np.int8)
         vol = volume or VoxelVolume.EMPTY
-        order = np.arange(len(frames), dtype=np.int64) if order is None else np.asarray(order, dtype=np.int64)
-        _classify(
-            np.ascontiguousarray(frames), order, stop, self.local, self.radius, self.first,
-            self.in_local, self.in_rad, self.in_first, self.ball_slot, self.ball_c, self.ball_r,
-            self.env_grow, self.map_grow, self.self_grow, self.env_mask,
-            self.ob_kind, self.ob_inv, self.ob_dim, self.ob_id, self.ob_exact,
-            self.octree_mask, vol.sat, vol.key_min, vol.inv_res, self.pair_a, self.pair_b, out,
+        F = np.ascontiguousarray(frames)
+        common = (
+            self.local, self.radius, self.first, self.in_local, self.in_rad, self.in_first, self.ball_slot,
+            self.ball_c, self.ball_r, self.env_grow, self.map_grow, self.self_grow, self.env_mask, self.ob_kind,
+            self.ob_inv, self.ob_dim, self.ob_id, self.ob_exact, self.octree_mask, vol.sat, vol.key_min, vol.inv_res,
+            self.pair_a, self.pair_b, out,
         )  # fmt: skip
+        if parallel and order is None and not stop:
+            _classify_parallel(F, *common)
+        else:
+            order = np.arange(len(F), dtype=np.int64) if order is None else np.asarray(order, dtype=np.int64)
+            _classify(F, order, stop, *common)
         if stop and (out == CONTACT).any():
             return out
         if len(self.tables):  # the always-close pairs: their tables may only say "maybe"
@@ -287,98 +297,143 @@ def _place(F, P, first, last, out):
 
 
 @numba.njit(cache=True, nogil=True)
+def _one(
+    n, frames, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
+    env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+    octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
+):  # fmt: skip
+    """The verdict on configuration n: 1 free for certain, -1 in contact for certain, 0 unsure (C, IC, BC, near,
+    placed: scratch space)."""
+    B, O = ball_slot.shape[0], ob_kind.shape[0]
+    for b in range(B):
+        _place(frames[n, ball_slot[b]], ball_c, b, b + 1, BC)
+        placed[b] = False
+    verdict = 1
+    for b in range(B):
+        x, y, z = BC[b, 0], BC[b, 1], BC[b, 2]
+        m = 0  # the obstacles this body's ball meets: only they are tested sphere by sphere
+        reach = ball_r[b] + env_grow
+        for o in range(O):
+            if env_mask[b, ob_id[o]] and _distance(ob_inv[o], ob_kind[o], ob_dim[o], x, y, z) <= reach:
+                near[m] = o
+                m += 1
+        if m > 0 and not placed[b]:
+            _place(frames[n, ball_slot[b]], local, first[b], first[b + 1], C)
+            _place(frames[n, ball_slot[b]], in_local, in_first[b], in_first[b + 1], IC)
+            placed[b] = True
+        hit = False  # a covering sphere meets an obstacle: then maybe an inner ball does too (certain)
+        for s in range(first[b], first[b + 1]):
+            for i in range(m):
+                o = near[i]
+                if _distance(ob_inv[o], ob_kind[o], ob_dim[o], C[s, 0], C[s, 1], C[s, 2]) <= rad[s] + env_grow:
+                    hit = True
+                    break
+            if hit:
+                break
+        if hit:
+            verdict = 0
+            for i in range(m):
+                o = near[i]
+                if not ob_exact[o]:
+                    continue
+                for k in range(in_first[b], in_first[b + 1]):
+                    if _distance(ob_inv[o], ob_kind[o], ob_dim[o], IC[k, 0], IC[k, 1], IC[k, 2]) < in_rad[k]:
+                        verdict = -1
+                        break
+                if verdict == -1:
+                    break
+            if verdict == -1:
+                break
+        if verdict == 1 and octree_mask[b]:
+            g = ball_r[b] + map_grow
+            if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
+                if not placed[b]:
+                    _place(frames[n, ball_slot[b]], local, first[b], first[b + 1], C)
+                    _place(frames[n, ball_slot[b]], in_local, in_first[b], in_first[b + 1], IC)
+                    placed[b] = True
+                for s in range(first[b], first[b + 1]):
+                    g = rad[s] + map_grow
+                    cx, cy, cz = C[s, 0], C[s, 1], C[s, 2]
+                    if _voxels_in(sat, key_min, inv_res, cx - g, cy - g, cz - g, cx + g, cy + g, cz + g) > 0:
+                        verdict = 0
+                        break
+    if verdict != -1:
+        for p in range(pair_a.shape[0]):
+            ba, bb = pair_a[p], pair_b[p]
+            d0, d1, d2 = BC[ba, 0] - BC[bb, 0], BC[ba, 1] - BC[bb, 1], BC[ba, 2] - BC[bb, 2]
+            reach = ball_r[ba] + ball_r[bb] + self_grow
+            if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach:
+                continue  # the two bodies' balls are apart
+            for bo in (ba, bb):
+                if not placed[bo]:
+                    _place(frames[n, ball_slot[bo]], local, first[bo], first[bo + 1], C)
+                    _place(frames[n, ball_slot[bo]], in_local, in_first[bo], in_first[bo + 1], IC)
+                    placed[bo] = True
+            hit = False
+            bx, by, bz, br = BC[bb, 0], BC[bb, 1], BC[bb, 2], ball_r[bb] + self_grow
+            for a in range(first[ba], first[ba + 1]):
+                d0, d1, d2 = C[a, 0] - bx, C[a, 1] - by, C[a, 2] - bz
+                if d0 * d0 + d1 * d1 + d2 * d2 > (rad[a] + br) ** 2:
+                    continue  # this sphere is apart from the other body's ball
+                for c in range(first[bb], first[bb + 1]):
+                    d0, d1, d2 = C[a, 0] - C[c, 0], C[a, 1] - C[c, 1], C[a, 2] - C[c, 2]
+                    reach = rad[a] + rad[c] + self_grow
+                    if d0 * d0 + d1 * d1 + d2 * d2 <= reach * reach:
+                        hit = True
+                        break
+                if hit:
+                    break
+            if not hit:
+                continue
+            verdict = 0
+            for a in range(in_first[ba], in_first[ba + 1]):  # two inner balls overlap: a contact for certain
+                for c in range(in_first[bb], in_first[bb + 1]):
+                    d0, d1, d2 = IC[a, 0] - IC[c, 0], IC[a, 1] - IC[c, 1], IC[a, 2] - IC[c, 2]
+                    reach = in_rad[a] + in_rad[c]
+                    if d0 * d0 + d1 * d1 + d2 * d2 < reach * reach:
+                        verdict = -1
+                        break
+                if verdict == -1:
+                    break
+            if verdict == -1:
+                break
+    return verdict
+
+
+@numba.njit(cache=True, nogil=True)
 def _classify(
     frames, order, stop, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
     env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
     octree_mask, sat, key_min, inv_res, pair_a, pair_b, out,
 ):  # fmt: skip
-    B, O = ball_slot.shape[0], ob_kind.shape[0]
-    C = np.empty((local.shape[0], 3))
-    IC = np.empty((in_local.shape[0], 3))
-    BC = np.empty((B, 3))
-    near = np.empty(O, np.int64)
+    C, IC = np.empty((local.shape[0], 3)), np.empty((in_local.shape[0], 3))
+    BC, near = np.empty((ball_slot.shape[0], 3)), np.empty(ob_kind.shape[0], np.int64)
+    placed = np.zeros(ball_slot.shape[0], np.bool_)  # a body's spheres are placed only when its ball meets something
     for n in order:
-        for b in range(B):
-            F = frames[n, ball_slot[b]]
-            _place(F, ball_c, b, b + 1, BC)
-            _place(F, local, first[b], first[b + 1], C)
-            _place(F, in_local, in_first[b], in_first[b + 1], IC)
-        verdict = 1
-        for b in range(B):
-            x, y, z = BC[b, 0], BC[b, 1], BC[b, 2]
-            m = 0  # the obstacles this body's ball meets: only they are tested sphere by sphere
-            reach = ball_r[b] + env_grow
-            for o in range(O):
-                if env_mask[b, ob_id[o]] and _distance(ob_inv[o], ob_kind[o], ob_dim[o], x, y, z) <= reach:
-                    near[m] = o
-                    m += 1
-            hit = False  # a covering sphere meets an obstacle: then maybe an inner ball does too (certain)
-            for s in range(first[b], first[b + 1]):
-                for i in range(m):
-                    o = near[i]
-                    if _distance(ob_inv[o], ob_kind[o], ob_dim[o], C[s, 0], C[s, 1], C[s, 2]) <= rad[s] + env_grow:
-                        hit = True
-                        break
-                if hit:
-                    break
-            if hit:
-                verdict = 0
-                for i in range(m):
-                    o = near[i]
-                    if not ob_exact[o]:
-                        continue
-                    for k in range(in_first[b], in_first[b + 1]):
-                        if _distance(ob_inv[o], ob_kind[o], ob_dim[o], IC[k, 0], IC[k, 1], IC[k, 2]) < in_rad[k]:
-                            verdict = -1
-                            break
-                    if verdict == -1:
-                        break
-                if verdict == -1:
-                    break
-            if verdict == 1 and octree_mask[b]:
-                g = ball_r[b] + map_grow
-                if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
-                    for s in range(first[b], first[b + 1]):
-                        g = rad[s] + map_grow
-                        cx, cy, cz = C[s, 0], C[s, 1], C[s, 2]
-                        if _voxels_in(sat, key_min, inv_res, cx - g, cy - g, cz - g, cx + g, cy + g, cz + g) > 0:
-                            verdict = 0
-                            break
-        if verdict != -1:
-            for p in range(pair_a.shape[0]):
-                ba, bb = pair_a[p], pair_b[p]
-                d0, d1, d2 = BC[ba, 0] - BC[bb, 0], BC[ba, 1] - BC[bb, 1], BC[ba, 2] - BC[bb, 2]
-                reach = ball_r[ba] + ball_r[bb] + self_grow
-                if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach:
-                    continue  # the two bodies' balls are apart
-                hit = False
-                bx, by, bz, br = BC[bb, 0], BC[bb, 1], BC[bb, 2], ball_r[bb] + self_grow
-                for a in range(first[ba], first[ba + 1]):
-                    d0, d1, d2 = C[a, 0] - bx, C[a, 1] - by, C[a, 2] - bz
-                    if d0 * d0 + d1 * d1 + d2 * d2 > (rad[a] + br) ** 2:
-                        continue  # this sphere is apart from the other body's ball
-                    for c in range(first[bb], first[bb + 1]):
-                        d0, d1, d2 = C[a, 0] - C[c, 0], C[a, 1] - C[c, 1], C[a, 2] - C[c, 2]
-                        reach = rad[a] + rad[c] + self_grow
-                        if d0 * d0 + d1 * d1 + d2 * d2 <= reach * reach:
-                            hit = True
-                            break
-                    if hit:
-                        break
-                if not hit:
-                    continue
-                verdict = 0
-                for a in range(in_first[ba], in_first[ba + 1]):  # two inner balls overlap: a contact for certain
-                    for c in range(in_first[bb], in_first[bb + 1]):
-                        d0, d1, d2 = IC[a, 0] - IC[c, 0], IC[a, 1] - IC[c, 1], IC[a, 2] - IC[c, 2]
-                        reach = in_rad[a] + in_rad[c]
-                        if d0 * d0 + d1 * d1 + d2 * d2 < reach * reach:
-                            verdict = -1
-                            break
-                    if verdict == -1:
-                        break
-                if verdict == -1:
-                    break
-        out[n] = verdict
-        if verdict == -1 and stop:
+        v = _one(
+            n, frames, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
+            env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+            octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
+        )  # fmt: skip
+        out[n] = v
+        if v == -1 and stop:
             return
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _classify_parallel(
+    frames, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
+    env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+    octree_mask, sat, key_min, inv_res, pair_a, pair_b, out,
+):  # fmt: skip
+    N, chunk = frames.shape[0], 256
+    for c in numba.prange((N + chunk - 1) // chunk):
+        C, IC = np.empty((local.shape[0], 3)), np.empty((in_local.shape[0], 3))
+        BC, near = np.empty((ball_slot.shape[0], 3)), np.empty(ob_kind.shape[0], np.int64)
+        placed = np.zeros(ball_slot.shape[0], np.bool_)
+        for n in range(c * chunk, min(N, (c + 1) * chunk)):
+            out[n] = _one(
+                n, frames, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
+                env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+                octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
+            )  # fmt: skip

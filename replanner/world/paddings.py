@@ -1,0 +1,65 @@
+"""Checkers of one world at other paddings against known objects: a goal may ask for less than the configured
+padding (grasps sit within a centimetre of their objects); its plan and the monitor's look at its path use it."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+from ..errors import InvalidInputError
+from .collision import CollisionChecker
+
+MIN_RESOLUTION = 0.002  # [m] the finest path resolution a small padding asks for (padding 0: within 1 mm)
+MAX_PADDING = 0.2  # [m]
+KEEP = 4  # checkers of other paddings kept (each builds its padded geometry once per scene)
+
+
+def check_padding(padding) -> float:
+    """`padding` [m] as a float, or a clear error naming the range."""
+    if isinstance(padding, bool) or not (
+        isinstance(padding, int | float) and math.isfinite(padding) and 0.0 <= padding <= MAX_PADDING
+    ):
+        raise InvalidInputError(f"padding must be a number of metres in [0, {MAX_PADDING}], got {padding!r}")
+    return float(padding)
+
+
+def padded_checker(checker: CollisionChecker, padding: float) -> CollisionChecker:
+    """A checker of the same world with another padding against known objects (the map keeps its own); its path
+    resolution follows the padding, at most 2 x padding, so the unpadded robot stays clear between two checks."""
+    padding = check_padding(padding)
+    return CollisionChecker(
+        checker.robot,
+        checker.world,
+        padding=padding,
+        map_padding=checker.map_padding,
+        path_resolution=min(checker.path_resolution, max(2.0 * padding, MIN_RESOLUTION)),
+        allowed_contacts=checker.allowed_contacts,
+        check_limits=checker.check_limits,
+    )
+
+
+class Paddings:
+    """`checker` at other paddings, built on demand (their geometry too: before any deadline), the last KEEP kept.
+
+    Args:
+        checker: the configured checker (padding None or its own padding gives it back).
+        wrap: what is handed out for a padded checker (e.g. the planning layer in front of it).
+    """
+
+    def __init__(self, checker: CollisionChecker, wrap: Callable[[CollisionChecker], object] = lambda c: c):
+        self.checker, self.wrap = checker, wrap
+        self._kept: dict[float, object] = {}
+
+    def get(self, padding: float | None, base=None):
+        """The checker for `padding` [m]; `base` is handed out for the configured one (default: the checker)."""
+        if padding is None or padding == self.checker.padding:
+            return self.checker if base is None else base
+        padding = check_padding(padding)
+        found = self._kept.pop(padding, None)
+        if found is None:
+            found = self.wrap(padded_checker(self.checker, padding))
+            found.is_valid(self.checker.robot.home)  # build the padded geometry now
+        self._kept[padding] = found  # most recently used last
+        while len(self._kept) > KEEP:
+            self._kept.pop(next(iter(self._kept)))
+        return found
