@@ -7,9 +7,11 @@ with (kind, job number, data): the finished trajectory and its PlanResult, or th
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
+import time
 from multiprocessing.connection import Connection
 
 import numpy as np
@@ -38,7 +40,13 @@ def serve(conn: Connection, cancel_conn: Connection) -> None:
             if job == current[0]:
                 cancel.set()
 
+    def die_with_the_parent(parent: int) -> None:
+        while os.getppid() == parent:  # a plan in progress reads no socket: a killed parent must end it too
+            time.sleep(0.5)
+        os._exit(0)
+
     threading.Thread(target=listen_for_cancels, daemon=True).start()
+    threading.Thread(target=die_with_the_parent, args=(os.getppid(),), daemon=True).start()
     conn.send(("ready", 0, None))
     while True:
         try:

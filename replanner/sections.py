@@ -349,6 +349,25 @@ class ControllerConfig(Section):
         1.0, gt=0.0, description="While holding, plan anew this often [s] (reaction replan: the first at once)."
     )
     joint_state_timeout: float = Field(0.25, gt=0.0, description="Joint states silent this long: brake, fail [s].")
+    robot_watchdog: float = Field(
+        1.0,
+        gt=0.0,
+        le=10.0,
+        description="The robot brakes along its path when the service's status is silent this long [s] (or at "
+        "once when its liveliness token goes): `replanner robot`.",
+    )
+    robot_stall_after: float = Field(
+        0.25, gt=0.0, le=10.0, description="`replanner robot` not stepped this long [s] stalled: it brakes."
+    )
+    joint_state_limit_slack: float = Field(
+        0.02, ge=0.0, le=0.5, description="A measured position this far past its limit is refused [rad]."
+    )
+    joint_state_max_age: float = Field(
+        2.0, gt=0.0, le=60.0, description="A joint state stamped longer ago than this is refused [s] (clocks)."
+    )
+    joint_state_max_lead: float = Field(
+        0.5, gt=0.0, le=60.0, description="A joint state stamped this far in the future is refused [s] (clocks)."
+    )
     sensor_timeout: float = Field(1.0, gt=0.0, description="A configured camera silent this long: brake, fail [s].")
     goal_tolerance: float = Field(0.01, gt=0.0, description="Reached when every joint is this close [rad].")
     settle_timeout: float = Field(1.0, gt=0.0, description="Time after the trajectory's end to reach the goal [s].")

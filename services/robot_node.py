@@ -16,6 +16,7 @@ from replanner.errors import InvalidInputError
 from replanner.trajectory import SampledTrajectory
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
+from replanner.transport.watch import ServiceWatch
 from replanner.world.robot import RobotModel
 
 log = logging.getLogger(__name__)
@@ -26,21 +27,37 @@ class KinematicRobotNode:
         self.robot = RobotModel.from_config(cfg.robot)
         self.keys = Keys(self.robot.name, cfg.transport.namespace)
         self.session = session
+        self.cfg = cfg
         self.driver = KinematicDriver(
-            self.robot.home if q0 is None else q0, rate_hz=cfg.controller.driver_rate_hz, clock=clock
+            self.robot.home if q0 is None else q0,
+            rate_hz=cfg.controller.driver_rate_hz,
+            clock=clock,
+            acceleration=self.robot.limits.acceleration,
+            stall_after=cfg.controller.robot_stall_after,
         )
         self.rejected = 0
+        self.stops = 0  # stops of its own: the service was lost
+        self.watch: ServiceWatch | None = None
 
     def start(self) -> KinematicRobotNode:
         self.pub = self.session.declare_publisher(self.keys.joint_states)
         self.driver.subscribe(self._publish)
         self.sub = self.session.declare_subscriber(self.keys.trajectory, self._on_trajectory)
         self.driver.start()
+        self.watch = ServiceWatch(self.session, self.keys, self.cfg.controller.robot_watchdog, self._service_lost)
         return self
 
     def stop(self) -> None:
+        if self.watch is not None:
+            self.watch.close()
         self.sub.undeclare()
         self.driver.stop()
+
+    def _service_lost(self, reason: str) -> None:
+        """No one watches the path any more: brake along it."""
+        if self.driver.timeline.stop_along(self.driver.clock(), self.robot.limits.acceleration) is not None:
+            self.stops += 1
+            log.warning("braking along the path: the service is lost (%s)", reason)
 
     def _publish(self, js: JointState) -> None:
         self.pub.put(m.encode_joint_state(js.stamp, self.robot.joint_names, js.position, js.velocity))
@@ -52,7 +69,12 @@ class KinematicRobotNode:
             self.rejected += 1
             log.warning("trajectory rejected: %s", err)
             return
-        late = self.driver.timeline.receive(traj, start, self.driver.clock())
+        try:
+            late = self.driver.timeline.receive(traj, start, self.driver.clock())
+        except InvalidInputError as err:
+            self.rejected += 1
+            log.warning("trajectory rejected: %s", err)
+            return
         if late > 0.0:
             log.warning("a trajectory from rest arrived %.0f ms after its start: started on arrival", late * 1e3)
 

@@ -14,12 +14,14 @@ import zenoh
 
 from replanner.config import ReplannerConfig
 from replanner.control import Goal, GoalRejected, JointState
+from replanner.control.liveness import admit_joint_state
 from replanner.errors import InvalidInputError, ReplannerError, UnknownNameError, WorldError
 from replanner.perception import CloudFrame, CloudRejected
 from replanner.planning import JointGoal, PoseGoal
 from replanner.stack import build_stack
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
+from replanner.world.geometry import encloses_base
 from replanner.world.transforms import check_transform
 
 log = logging.getLogger(__name__)
@@ -45,6 +47,7 @@ class Service:
         self.keys = Keys(self.robot.name, cfg.transport.namespace)
         self.rejections: dict[str, int] = {}
         self.last_js: JointState | None = None
+        self._js_frames = ("", self.robot.base_link)  # a JointState's frame_id: usually empty
         self._requests: queue.Queue = queue.Queue(maxsize=256)
         self._clouds: dict[str, tuple] = {}
         self._cloud_event = threading.Event()
@@ -78,8 +81,7 @@ class Service:
         ):
             self._decl.append(s.declare_queryable(getattr(k, name), self._enqueue_query(name)))
         self._decl.append(s.declare_subscriber(k.joint_states, self._on_joint_state))
-        if self.perception is not None:
-            self._decl.append(s.declare_subscriber(k.clouds, self._on_cloud))
+        self._decl.append(s.declare_subscriber(k.clouds, self._on_cloud))  # without cameras: refused, counted
         for target, name in (
             (self._serve_requests, "requests"),
             (self._serve_clouds, "clouds"),
@@ -150,6 +152,7 @@ class Service:
                 "robot": self.robot.name,
                 "joint_names": list(self.robot.joint_names),
                 "position": js.position.tolist() if js else None,
+                "position_age": round(self.clock() - js.stamp, 4) if js else None,
                 "stamp": self.clock(),
                 "objects": sorted(self.world.objects),
                 "attachments": sorted(self.world.attachments),
@@ -170,6 +173,8 @@ class Service:
                 log.exception("status publishing failed")
 
     def _reject(self, source: str, err: Exception) -> None:
+        if source not in self.rejections and len(self.rejections) >= 64:
+            source = "(other sources)"  # anyone may publish on any key: the counts stay bounded
         self.rejections[source] = self.rejections.get(source, 0) + 1
         log.warning("%s rejected: %s", source, err)
         try:
@@ -180,7 +185,9 @@ class Service:
     # ------------------------------------------------------------------ stream inputs (callbacks: never block)
     def _on_joint_state(self, sample) -> None:
         try:
-            stamp, q, qd = m.decode_joint_state(sample.payload.to_bytes(), self.robot.joint_names)
+            stamp, q, qd = m.decode_joint_state(sample.payload.to_bytes(), self.robot.joint_names, self._js_frames)
+            last = self.last_js.stamp if self.last_js is not None else None
+            admit_joint_state(stamp, q, last=last, now=self.clock(), robot=self.robot, cfg=self.cfg.controller)
             js = JointState(stamp, q, qd if qd is not None else np.zeros_like(q))
             self.stack.on_joint_state(js)
         except (InvalidInputError, ReplannerError) as err:
@@ -207,13 +214,23 @@ class Service:
 
     def _integrate(self, sensor: str, data: bytes, attachment: bytes | None) -> None:
         try:
+            if self.perception is None:
+                raise InvalidInputError(
+                    f"clouds/{sensor}: this service runs without cameras (--no-cameras, or no perception.sensors "
+                    "in its config): clouds are not used"
+                )
             stamp, pts, width, height = m.decode_cloud(data, f"clouds/{sensor}")
             T = None
             if attachment:
                 pose = m.parse_json(m.Pose, attachment, f"clouds/{sensor} attachment")
                 T = check_transform(pose.matrix(), "sensor pose")
             cfg = next((s for s in self.cfg.perception.sensors if s.name == sensor), None)
-            organized = cfg is not None and height > 1 and width == cfg.width and height == cfg.height
+            organized = cfg is not None and height > 1
+            if organized and (width, height) != (cfg.width, cfg.height):
+                raise InvalidInputError(
+                    f"clouds/{sensor}: an organized cloud (height > 1) must be the camera's {cfg.width}x{cfg.height}"
+                    f" pixels, got {width}x{height}; send height 1 for an unorganized cloud"
+                )
             self.perception.integrate(CloudFrame(sensor, stamp, pts, T, organized=organized))  # tells the controller
         except (CloudRejected, InvalidInputError, ReplannerError) as err:
             self._reject(f"clouds/{sensor}", err)
@@ -271,7 +288,13 @@ class Service:
 
     def _q_scene_add(self, payload):
         req = m.parse_json(m.SceneAdd, payload, "scene/add")
-        self.world.add(req.name, m.shape_from(req.shape), req.pose.matrix())
+        shape, pose = m.shape_from(req.shape), req.pose.matrix()
+        if encloses_base(shape, pose):
+            raise InvalidInputError(
+                f"{req.name!r} would enclose the robot's base: no configuration of the arm is free of it; "
+                "check its size and position (metres, in the base frame)"
+            )
+        self.world.add(req.name, shape, pose)
         return {"added": req.name}
 
     def _q_scene_move(self, payload):
@@ -321,7 +344,8 @@ class Service:
         req = m.parse_json(m.MapGet, payload or b"{}", "map/get")  # no payload: the whole map
         occ = self.world.snapshot().occupancy
         if occ is None or not len(occ):
-            return {"resolution": self.cfg.perception.resolution if self.perception else None, "count": 0, "voxels": []}
+            res = self.cfg.perception.resolution if self.cfg.perception is not None else None
+            return {"resolution": res, "stamp": occ.stamp if occ is not None else None, "count": 0, "voxels": []}
         c = occ.centers
         if req.min is not None:
             c = c[np.all((c >= req.min) & (c <= req.max), axis=1)]

@@ -10,6 +10,7 @@ import pytest
 
 from replanner.control import KinematicDriver, Timeline
 from replanner.control.moves import Moves
+from replanner.errors import InvalidInputError
 from replanner.trajectory.generator import TrajectoryGenerator
 
 
@@ -36,7 +37,68 @@ def test_a_late_motion_from_rest_starts_on_arrival_a_late_splice_does_not(panda)
     np.testing.assert_allclose(tl.state(10.15)[0], panda.home)
     b = gen.slow_down(a, 0.2, 0.5)  # a splice: starts moving, lands at 10.35 on the robot's motion
     assert tl.receive(b, 10.35, 10.4) == 0.0 and tl.segments()[-1][0] == 10.35  # moving: it runs as stamped
-    assert tl.receive(a, 30.0, 20.0) == 0.0 and tl.segments()[-1][0] == 30.0  # early: waits for its start
+    c = gen.time(np.array([tl.state(30.0)[0], panda.home]))
+    assert tl.receive(c, 30.0, 20.0) == 0.0 and tl.segments()[-1][0] == 30.0  # early: waits for its start
+
+
+def test_the_robot_refuses_a_trajectory_that_would_make_it_jump(panda):
+    gen = TrajectoryGenerator(panda)
+    tl = Timeline(panda.home)
+    far = gen.time(np.array([panda.home + 0.5, panda.home]))  # starts half a radian from where the arm stands
+    with pytest.raises(InvalidInputError, match=r"starts 0.500 rad away .* would jump"):
+        tl.receive(far, 10.0, 10.0)
+    assert tl.segments() == []
+    tl.receive(gen.time(np.array([panda.home, panda.home + 0.3])), 10.0, 10.0)  # from where it is: taken
+    assert len(tl.segments()) == 1
+
+
+def _samples(tl, t0, t1, dt=0.001):
+    ts = np.arange(t0, t1, dt)
+    return ts, np.array([tl.state(t)[0] for t in ts])
+
+
+def test_the_robots_own_stop_stays_on_the_path_and_within_the_acceleration(panda):
+    gen = TrajectoryGenerator(panda)
+    traj = gen.time(np.array([panda.home, panda.home + 0.8]))
+    tl = Timeline(panda.home)
+    tl.add(traj, 10.0)
+    now = 10.0 + traj.duration / 2  # full speed
+    acc = panda.limits.acceleration
+    stands = tl.stop_along(now, acc)
+    assert stands is not None and now < stands
+    ts, Q = _samples(tl, now - 0.05, stands + 0.2)
+    V = np.diff(Q, axis=0) / 0.001
+    A = np.diff(V, axis=0) / 0.001
+    assert np.all(np.abs(A) <= 1.1 * acc)  # within the acceleration (the bound's worst case), no jump in velocity
+    assert np.abs(V[-50:]).max() < 1e-6  # stands
+    # on the path: every sample is the trajectory's own configuration at some time, in order
+    dense = np.array([traj.state_at(t)[0] for t in np.arange(0.0, traj.duration, 0.0005)])
+    d = np.linalg.norm(Q[:, None] - dense[None], axis=2)
+    assert d.min(axis=1).max() < 2e-3 and np.all(np.diff(d.argmin(axis=1)) >= 0)
+    assert tl.stop_along(stands + 1.0, acc) is None  # standing: nothing to stop
+
+
+def test_after_a_stall_the_robot_goes_on_from_where_it_was_and_brakes(panda):
+    """A robot stopped for 2 s (SIGSTOP) must not replay its queue: no step larger than the limits allow."""
+    gen = TrajectoryGenerator(panda)
+    traj = gen.time(np.array([panda.home, panda.home + 1.0]))
+    clock = VirtualClock(10.0)
+    drv = KinematicDriver(panda.home, rate_hz=200, clock=clock, acceleration=panda.limits.acceleration,
+                          stall_after=0.25)  # fmt: skip
+    drv.execute(traj, 10.0)
+    last = 10.0 + traj.duration / 3
+    before = drv.state(last).position
+    assert drv.stall_check(last, last + 2.0) and drv.stalls == 1
+    q = [drv.state(last + 2.0 + k * 0.005).position for k in range(400)]
+    steps = np.abs(np.diff(q, axis=0)).max(axis=0)
+    assert np.all(steps <= panda.limits.velocity * 0.005 * 1.01)  # never a jump: at most the speed limit
+    assert np.abs(q[0] - before).max() < 1e-9  # on from where it was
+    assert np.abs(q[-1] - q[-2]).max() < 1e-9  # and stands
+    without = KinematicDriver(panda.home, rate_hz=200, clock=clock)
+    without.execute(traj, 10.0)
+    assert not without.stall_check(last, last + 2.0)  # a simulated robot in the controller's process: no stall
+    jump = np.abs(without.state(last + 2.0).position - without.state(last).position).max()
+    assert jump > 0.5  # what a stale queue does
 
 
 def test_a_brake_calls_off_a_motion_sent_but_not_started(panda):

@@ -290,6 +290,25 @@ def test_bad_clouds_are_rejected_and_leave_the_map_unchanged(rig):
     rig.frame()  # and the pipeline still works
 
 
+def test_an_organized_frame_of_no_returns_is_a_live_camera_that_clears_nothing(rig):
+    """A camera looking at empty space (or covered) sends an organized frame of NaN: taken (the camera is alive),
+    nothing added, nothing cleared (NaN is no return: too far, or something too near the lens)."""
+    rig.sim.add("box", Box(size=(0.1, 0.1, 0.3)), make_transform((0.6, 0.3, 0.15)))
+    rig.frame()
+    active = rig.perception.map.active.copy()
+    assert len(active)
+    sensor = rig.cfg.perception.sensors[0]
+    blank = np.full((sensor.width * sensor.height, 3), np.nan, np.float32)
+    rig.stamp += 1.0
+    rig.perception.add_joint_state(rig.stamp, rig.q)
+    rep = rig.perception.integrate(CloudFrame("front", rig.stamp, blank, organized=True))
+    assert rep.counts["input"] == len(blank) and rig.perception.sensors["front"].last_stamp == rig.stamp
+    np.testing.assert_array_equal(rig.perception.map.active, active)
+    rig.perception.add_joint_state(rig.stamp + 1.0, rig.q)
+    with pytest.raises(CloudRejected, match="no finite point"):  # a list of NaN points says nothing at all
+        rig.perception.integrate(CloudFrame("front", rig.stamp + 1.0, blank[:100]))
+
+
 def test_no_joint_state_yet_is_rejected(panda):
     rig = Rig(robot=panda)
     cloud = rig.cameras["front"].cloud()

@@ -256,6 +256,40 @@ def _joint_state(names, q, stamp=None) -> bytes:
     return m.encode_joint_state(time.time() if stamp is None else stamp, names, q)
 
 
+def _raw_js(names=None, pos=None, vel=(), eff=(), sec=None, nanosec=0, frame="") -> bytes:
+    """A JointState as any publisher could write it, right or wrong (rosbags' own serializer)."""
+    ts = m.typestore()
+    names = list(NAMES if names is None else names)
+    pos = np.asarray(HOME if pos is None else pos, np.float64)
+    sec = int(time.time()) if sec is None else sec
+    header = ts.types["std_msgs/msg/Header"](
+        stamp=ts.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame
+    )
+    msg = ts.types[m.JOINT_STATE](
+        header=header, name=names, position=pos, velocity=np.asarray(vel, np.float64), effort=np.asarray(eff, float)
+    )
+    return bytes(ts.serialize_cdr(msg, m.JOINT_STATE))
+
+
+def _cloud_wh(width, height, row_step=None, z_at=8) -> bytes:
+    """A PointCloud2 of width x height points as any publisher could write it (rosbags' own serializer)."""
+    ts = m.typestore()
+    F = ts.types["sensor_msgs/msg/PointField"]
+    pts = np.random.default_rng(0).uniform(-0.2, 0.2, (width * height, 3)).astype(np.float32) + [0, 0, 1.5]
+    msg = ts.types[m.POINT_CLOUD2](
+        header=m.make_header(time.time(), "front"),
+        height=height,
+        width=width,
+        fields=[F(name=n, offset=o, datatype=7, count=1) for n, o in (("x", 0), ("y", 4), ("z", z_at))],
+        is_bigendian=False,
+        point_step=12,
+        row_step=12 * width if row_step is None else row_step,
+        data=pts.astype(np.float32).view(np.uint8).ravel(),
+        is_dense=True,
+    )
+    return bytes(ts.serialize_cdr(msg, m.POINT_CLOUD2))
+
+
 def _cloud(n, stamp=None) -> bytes:
     pts = np.random.default_rng(0).uniform(-0.2, 0.2, (n, 3)).astype(np.float32) + [0, 0, 1.5]
     return m.encode_cloud(time.time() if stamp is None else stamp, pts, "front")
@@ -277,6 +311,48 @@ REQUESTS = [
     ("NaN joint", "goal", b'{"id": "g", "joints": [NaN, 0, 0, -2, 0, 1.5, 0.7]}', "finite"),
     ("out of limits", "goal", {"id": "g", "joints": [0.0, 3.0, 0.0, -2.0, 0.0, 1.5, 0.7]}, "limit"),
     ("goal in collision", "goal", {"id": "g", "joints": [0.0, 1.5, 0.0, -0.5, 0.0, 1.5, 0.7]}, "collision"),
+    ("NaN deadline", "goal", b'{"id": "g", "joints": [0, 0, 0, -2, 0, 1.5, 0.7], "deadline": NaN}', "finite number"),
+    (
+        "NaN acceleration scale",
+        "goal",
+        b'{"id": "g", "joints": [0, 0, 0, -2, 0, 1.5, 0.7], "acceleration_scale": NaN}',
+        "acceleration_scale: Input should be a finite number",
+    ),
+    ("number as a string", "goal", {"id": "g", "joints": HOME, "velocity_scale": "0.4"}, "not a string"),
+    ("true as a number", "goal", {"id": "g", "joints": HOME, "velocity_scale": True}, "not true or false"),
+    ("padding negative", "goal", {"id": "g", "joints": HOME, "padding": -0.01}, "padding: Input should be greater"),
+    ("JSON nested 100k deep", "goal", b"[" * 100_000 + b"]" * 100_000, "nested too deeply"),
+    (
+        "unknown field in a pose",
+        "goal",
+        {"id": "g", "pose": {"link": "panda_hand", "position": [0.4, 0, 0.4], "orientation": [0, 0, 0, 1]}},
+        "pose.orientation: unknown field; allowed: position, quat_xyzw, link",
+    ),
+    (
+        "unknown field in a shape",
+        "scene/add",
+        {"name": "x", "shape": {"type": "box", "size": [0.1] * 3, "radius": 1}, "pose": {"position": [0.5, 0.5, 1]}},
+        "shape.box.radius: unknown field; allowed: type, size",
+    ),
+    (
+        "name with a slash",
+        "scene/add",
+        {"name": "a/b", "shape": {"type": "sphere", "radius": 0.1}, "pose": {"position": [0.5, 0.5, 1]}},
+        "letters, digits",
+    ),
+    (
+        "name with a NUL",
+        "scene/add",
+        {"name": "a\u0000", "shape": {"type": "sphere", "radius": 0.1}, "pose": {"position": [0.5, 0.5, 1]}},
+        "letters, digits",
+    ),
+    (
+        "a box around the robot",
+        "scene/add",
+        {"name": "hall", "shape": {"type": "box", "size": [1e6, 1e6, 1e6]}, "pose": {"position": [0, 0, 0]}},
+        "enclose the robot's base",
+    ),
+    ("attach to the fixed base", "scene/attach", {"name": "table", "link": "panda_link0"}, "fixed to the base"),
     (
         "both targets",
         "goal",
@@ -352,10 +428,62 @@ STREAMS = [
         "missing",
     ),
     ("joint state NaN", "joint_states", lambda: _joint_state(NAMES, [np.nan] * 7), "joint_states", "NaN"),
+    ("joint state positions short", "joint_states", lambda: _raw_js(pos=HOME[:6]), "joint_states", "7 names but 6"),
+    (
+        "joint state duplicate name",
+        "joint_states",
+        lambda: _raw_js(NAMES + NAMES[:1], np.r_[HOME, 0.3]),
+        "joint_states",
+        "named more than once",
+    ),
+    ("joint state velocity short", "joint_states", lambda: _raw_js(vel=[0.0] * 3), "joint_states", "3 velocity"),
+    (
+        "joint state velocity NaN",
+        "joint_states",
+        lambda: _raw_js(vel=[np.nan] * 7),
+        "joint_states",
+        "velocity contains",
+    ),
+    ("joint state effort long", "joint_states", lambda: _raw_js(eff=[0.0] * 9), "joint_states", "9 effort"),
+    ("joint state effort inf", "joint_states", lambda: _raw_js(eff=[np.inf] * 7), "joint_states", "effort contains"),
+    ("joint state nanosec 4e9", "joint_states", lambda: _raw_js(nanosec=4_000_000_000), "joint_states", "not a time"),
+    ("joint state negative sec", "joint_states", lambda: _raw_js(sec=-5), "joint_states", "not a time"),
+    ("joint state foreign frame", "joint_states", lambda: _raw_js(frame="map"), "joint_states", "frame_id 'map'"),
+    (
+        "joint state past its limit",
+        "joint_states",
+        lambda: _joint_state(NAMES, np.r_[10.0, HOME[1:]]),
+        "joint_states",
+        "panda_joint1 = 10.0000 rad is outside its limits",
+    ),
+    (
+        "joint state 10 s old",
+        "joint_states",
+        lambda: _joint_state(NAMES, HOME, time.time() - 10),
+        "joint_states",
+        "s old",
+    ),
+    (
+        "joint state from the future",
+        "joint_states",
+        lambda: _joint_state(NAMES, HOME, time.time() + 10),
+        "joint_states",
+        "in the future",
+    ),
+    (
+        "joint state older than the last",
+        "joint_states",
+        lambda: _joint_state(NAMES, HOME, time.time() - 0.5),
+        "joint_states",
+        "not newer than the last",
+    ),
     ("cloud not CDR", "clouds/front", lambda: b"\x00\x01\x00\x00garbage", "clouds/front", "CDR"),
     ("cloud truncated", "clouds/front", lambda: _cloud(500)[:300], "clouds/front", "CDR"),
     ("cloud larger than configured", "clouds/front", lambda: _cloud(320 * 240 + 1), "clouds/front", "max_points"),
     ("cloud from an unknown sensor", "clouds/rear", lambda: _cloud(100), "clouds/rear", "unknown sensor"),
+    ("cloud 10x10 organized", "clouds/front", lambda: _cloud_wh(10, 10), "clouds/front", "got 10x10"),
+    ("cloud row_step wrong", "clouds/front", lambda: _cloud_wh(50, 1, row_step=7), "clouds/front", "row_step 7"),
+    ("cloud fields overrun", "clouds/front", lambda: _cloud_wh(50, 1, z_at=12), "clouds/front", "overrun point_step"),
     ("cloud from the past", "clouds/front", lambda: _cloud(100, stamp=1.0), "clouds/front", "not newer"),
     (
         "cloud with a bad pose",

@@ -454,7 +454,7 @@ class Controller:
         if now - self._hold_since > self.cfg.hold_timeout:
             self._finish(GoalStatus.FAILED, f"the path stayed blocked for {self.cfg.hold_timeout} s")
             self.give_up(reason=f"blocked for {self.cfg.hold_timeout} s")
-        elif room and not moving and self._job is None and now - self._hold_planned > self._hold_wait():
+        elif room and not (moving or clear) and self._job is None and now - self._hold_planned > self._hold_wait():
             self._hold_planned = now
             self._launch(JobPurpose.HOLD, self._deadline())
 
@@ -485,7 +485,7 @@ class Controller:
     def status(self) -> dict:
         h, now = self.active_goal(), self.clock()
         view = None
-        if self.state != State.WAITING.value and self.liveness.last_js is not None:
+        if self.state not in (State.WAITING.value, State.PLANNING.value) and self.liveness.last_js is not None:
             view = self.monitor.view(self.moves.timeline, now, self.measured())
         return {
             "state": self.state,

@@ -34,6 +34,9 @@ class KinematicDriver:
         on_state: called with each JointState (from the driver's thread; must not block).
         clock: time source [s], shared with the controller.
         wait: wait(seconds) between states; default: a real wait (a test passes one that moves its own clock).
+        acceleration: [rad/s^2] per joint the robot's own stops may use (after a stall, or when told to stop).
+        stall_after: a gap between two steps this long [s] is a stall (see `stall_check`); None: never (a robot
+            simulated in the controller's own process is only starved, not stalled).
     """
 
     def __init__(
@@ -43,6 +46,8 @@ class KinematicDriver:
         on_state: Callable[[JointState], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
         wait: Callable[[float], object] | None = None,
+        acceleration=None,
+        stall_after: float | None = None,
     ):
         self.timeline = Timeline(q0)
         self.rate_hz = float(rate_hz)
@@ -52,6 +57,8 @@ class KinematicDriver:
         self._thread: threading.Thread | None = None
         self._wait = wait or self._stop.wait
         self.silent = False  # tests stop the stream to exercise the controller's watchdog
+        self.acceleration = np.asarray(acceleration, dtype=float) if acceleration is not None else np.full(1, 5.0)
+        self.stalls, self.stall_after = 0, stall_after
 
     def subscribe(self, callback: Callable[[JointState], None]) -> None:
         self._subscribers.append(callback)
@@ -76,10 +83,25 @@ class KinematicDriver:
         if self._thread is not None:
             self._thread.join(timeout=2.0)
 
+    def stall_check(self, last: float, now: float) -> bool:
+        """After a stall (no step for `stall_after` [s]: the process was stopped or starved) the robot does not
+        catch up with its queue in one step: it goes on from where it was, and brakes along its path."""
+        gap = now - last
+        if self.stall_after is None or gap <= self.stall_after:
+            return False
+        self.timeline.delay(last, gap)
+        self.timeline.stop_along(now, self.acceleration)
+        self.stalls += 1
+        log.warning("the robot stalled for %.3f s: it went on from where it was and braked along its path", gap)
+        return True
+
     def _run(self) -> None:
         period = 1.0 / self.rate_hz
-        next_t = self.clock()
+        next_t = last = self.clock()
         while not self._stop.is_set():
+            now = self.clock()
+            self.stall_check(last, now)
+            last = now
             if not self.silent:
                 js = self.state()
                 for cb in list(self._subscribers):

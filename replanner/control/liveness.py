@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
+from ..errors import InvalidInputError
+
 
 class Liveness:
     """The newest joint state and when each input was last heard of, on the controller's clock [s].
@@ -43,3 +47,29 @@ class Liveness:
                     return f"camera {s!r} is silent: its point clouds are needed to move safely"
                 return f"camera {s!r} silent for {age:.2f} s"
         return None
+
+
+def admit_joint_state(stamp: float, q, *, last: float | None, now: float, robot, cfg) -> None:
+    """Raise InvalidInputError saying why a decoded joint state cannot be taken as the arm's: a position past its
+    limit by more than `cfg.joint_state_limit_slack` [rad], a stamp not newer than the `last` one taken, older
+    than `cfg.joint_state_max_age` or ahead of `now` by more than `cfg.joint_state_max_lead` [s]."""
+    slack, limits = cfg.joint_state_limit_slack, robot.limits
+    over = np.flatnonzero((q < limits.lower - slack) | (q > limits.upper + slack))
+    if len(over):
+        j = int(over[0])
+        raise InvalidInputError(
+            f"joint_states: {robot.joint_names[j]} = {q[j]:.4f} rad is outside its limits "
+            f"[{limits.lower[j]:.4f}, {limits.upper[j]:.4f}] by more than {slack} rad"
+        )
+    if stamp < now - cfg.joint_state_max_age:
+        raise InvalidInputError(
+            f"joint_states: stamp {stamp:.3f} is {now - stamp:.3f} s old (joint_state_max_age "
+            f"{cfg.joint_state_max_age} s): check the robot's and the service's clocks"
+        )
+    if stamp > now + cfg.joint_state_max_lead:
+        raise InvalidInputError(
+            f"joint_states: stamp {stamp:.3f} is {stamp - now:.3f} s in the future (joint_state_max_lead "
+            f"{cfg.joint_state_max_lead} s): check the robot's and the service's clocks"
+        )
+    if last is not None and stamp <= last:
+        raise InvalidInputError(f"joint_states: stamp {stamp:.6f} is not newer than the last one taken ({last:.6f})")

@@ -7,6 +7,11 @@ from typing import Protocol
 
 import numpy as np
 
+from ..errors import InvalidInputError
+
+JUMP_TOLERANCE = 0.02  # [rad] a received trajectory starts this close to where the robot is told to be
+MIN_STOP = 0.05  # [s] the shortest stop along the path
+
 
 class Timed(Protocol):
     """Anything with a duration [s] and a state at a time: a Trajectory or a SampledTrajectory."""
@@ -39,21 +44,58 @@ class Timeline:
             kept = [(t, tr) for t, tr in self._segments if t < start]
             self._segments = [*kept, (float(start), traj)][-self._keep :]
 
-    def receive(self, traj: Timed, start: float, now: float) -> float:
+    def receive(self, traj: Timed, start: float, now: float, tolerance: float | None = JUMP_TOLERANCE) -> float:
         """The robot's side: run `traj` from `start`, or from `now` if it arrives late to a robot at rest and starts
-        at rest (as a driver starts a trajectory stamped in the past: a jump would be worse). Returns the delay [s]."""
+        at rest (as a driver starts a trajectory stamped in the past: a jump would be worse). Returns the delay [s].
+
+        Raises InvalidInputError for a trajectory that does not start where the robot is told to be then (by more
+        than `tolerance` [rad]; None: not checked, e.g. a robot whose measured state lags what it was told)."""
         late = now - start
-        if late > 0.0 and not self.moving(now) and np.abs(traj.state_at(0.0)[1]).max() < 1e-6:
-            self.add(traj, now)
-            return late
-        self.add(traj, start)
-        return 0.0
+        from_rest = late > 0.0 and not self.moving(now) and np.abs(traj.state_at(0.0)[1]).max() < 1e-6
+        at = now if from_rest else start
+        gap = np.abs(traj.state_at(0.0)[0] - self.state(at)[0])
+        if tolerance is not None and gap.max() > tolerance:
+            j = int(np.argmax(gap))
+            raise InvalidInputError(
+                f"the trajectory starts {gap[j]:.3f} rad away from where joint {j + 1} is at its start: following "
+                f"it would jump (more than {tolerance} rad); plan from the measured joint states"
+            )
+        self.add(traj, at)
+        return late if from_rest else 0.0
+
+    def stop_along(self, now: float, acceleration) -> float | None:
+        """Brake along the path running at `now` (the robot's own stop: the service is gone, or the robot stalled)
+        with at most `acceleration` [rad/s^2] per joint from slowing down; drops whatever was to come. Returns when
+        the arm will stand [clock s], None if it is not moving."""
+        seg = self.active(now)
+        if seg is None or not self.moving(now):
+            self.add(_Rest(self.state(now)[0]), now)  # nothing queued runs either
+            return None
+        start, traj = seg
+        t0 = now - start
+        qd = traj.state_at(t0)[1]
+        # the slowing adds k' qd (k' peaks at 1.5 / D) to the path's own k^2 qdd: with D = 4 |qd| / a the sum stays
+        # within 1.1 a even where the path itself brakes at its limit (within a where it does not)
+        D = max(MIN_STOP, 4.0 * float(np.max(np.abs(qd) / np.asarray(acceleration, dtype=float))))
+        self.add(Slowed(traj, t0, D), start)
+        return now + D
 
     def shift(self, traj: Timed, start: float) -> None:
         """`traj` runs from `start` after all (a robot that got it late started it then); later segments stay."""
         with self._lock:
             moved = [((start if tr is traj else s), tr) for s, tr in self._segments]
             self._segments = sorted(moved, key=lambda seg: seg[0])
+
+    def delay(self, since: float, by: float) -> None:
+        """Everything from `since` on runs `by` [s] later (the robot stood still meanwhile)."""
+        with self._lock:
+            seg = None
+            for s, tr in self._segments:
+                if s <= since:
+                    seg = (s, tr)
+            active = seg[1] if seg is not None else None
+            self._segments = [((s + by) if s > since or tr is active else s, tr) for s, tr in self._segments]
+            self._segments.sort(key=lambda x: x[0])
 
     def segments(self) -> list[tuple[float, Timed]]:
         """(start, trajectory) pairs in start order."""
@@ -90,3 +132,37 @@ class Timeline:
             return self._rest.copy(), np.zeros_like(self._rest)
         q, qd, _ = seg[1].state_at(t - seg[0])
         return q, qd
+
+
+class Slowed:
+    """`traj` from its time `t0` on, slowed to a stop along its own path within `D` [s]: its clock runs at the rate
+    k(u) = 1 - 3u^2 + 2u^3, u = (t - t0) / D (C1: the acceleration stays continuous), so the arm covers D / 2 of
+    the trajectory's time and stands."""
+
+    def __init__(self, traj: Timed, t0: float, D: float):
+        self.traj, self.t0, self.D = traj, float(t0), float(D)
+
+    @property
+    def duration(self) -> float:
+        return self.t0 + self.D
+
+    def state_at(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if t <= self.t0:
+            return self.traj.state_at(t)
+        u = min((t - self.t0) / self.D, 1.0)
+        tau = self.t0 + self.D * (u - u**3 + u**4 / 2)
+        k, dk = 1 - 3 * u * u + 2 * u**3, (-6 * u + 6 * u * u) / self.D
+        q, qd, qdd = self.traj.state_at(tau)
+        return q, qd * k, qdd * k * k + qd * dk
+
+
+class _Rest:
+    """Standing at q."""
+
+    duration = 0.0
+
+    def __init__(self, q):
+        self.q = np.asarray(q, dtype=float)
+
+    def state_at(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.q.copy(), np.zeros_like(self.q), np.zeros_like(self.q)

@@ -248,10 +248,12 @@ class Perception:
             t_prev = now
 
         lap("validate")
+        # an organized frame of no returns is a live camera seeing nothing (NaN never clears: too far or too near)
+        seeing = frame.organized or depth is not None
         ok = None  # the per-point range mask: only a cloud that is not organized needs it (for clearing)
         if cfg.downsample:
             flat, rep.counts["range"], rep.counts["crop"] = self._voxelize(pts, T, sensor, cfg.range_filter)
-            if rep.counts["range"] == 0 and not np.isfinite(pts).any():
+            if rep.counts["range"] == 0 and not seeing and not np.isfinite(pts).any():
                 self._reject(sensor, f"{sensor.cfg.name}: the cloud has no finite point (all NaN or inf)")
             if not frame.organized and depth is None:
                 ok = self._in_range(pts, T, sensor, cfg.range_filter)
@@ -263,7 +265,7 @@ class Perception:
             W = T[:3, :3].astype(np.float32) @ pts.T + T[:3, 3:4].astype(np.float32)
             ok = self._in_range(pts, T, sensor, cfg.range_filter, W)
             rep.counts["range"] = int(ok.sum())
-            if rep.counts["range"] == 0 and not np.isfinite(pts).any():
+            if rep.counts["range"] == 0 and not seeing and not np.isfinite(pts).any():
                 self._reject(sensor, f"{sensor.cfg.name}: the cloud has no finite point (all NaN or inf)")
             lap("range")
             lo, hi = self.grid.lo, self.grid.hi

@@ -6,7 +6,7 @@ import json
 import math
 import struct
 from functools import lru_cache
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -27,10 +27,13 @@ def _finite(values: list[float], name: str) -> list[float]:
 
 
 class _Msg(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    # strict: "0.4" and true are not numbers; NaN and inf are not finite numbers (JSON has neither)
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3, description="[x, y, z]")]
+# object names: letters, digits and _ . - (they appear in logs, keys of the map's filters and file names)
+Name = Annotated[str, Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9_.\-]+$")]
 Quat = Annotated[list[float], Field(min_length=4, max_length=4, description="[x, y, z, w]")]
 
 
@@ -121,22 +124,22 @@ def shape_to_msg(shape) -> dict:
 
 
 class SceneAdd(_Msg):
-    name: str = Field(min_length=1, max_length=128)
+    name: Name
     shape: ShapeMsg
     pose: Pose
 
 
 class SceneMove(_Msg):
-    name: str = Field(min_length=1, max_length=128)
+    name: Name
     pose: Pose
 
 
 class SceneName(_Msg):
-    name: str = Field(min_length=1, max_length=128)
+    name: Name
 
 
 class SceneAttach(_Msg):
-    name: str = Field(min_length=1, max_length=128)
+    name: Name
     link: str
     touch_links: list[str] | None = None
     support: list[str] = Field(default_factory=list, description="static objects it may touch until it left them")
@@ -174,6 +177,8 @@ def parse_json(model: type[_Msg], payload: bytes | None, what: str):
         data = json.loads(payload)
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise DecodeError(f"{what}: not valid JSON ({err})") from None
+    except RecursionError:
+        raise DecodeError(f"{what}: JSON nested too deeply (no request nests more than a few levels)") from None
     if not isinstance(data, dict):
         raise DecodeError(f"{what}: the payload must be a JSON object ({_fields(model)}), got {type(data).__name__}")
     try:
@@ -183,14 +188,41 @@ def parse_json(model: type[_Msg], payload: bytes | None, what: str):
         for e in err.errors():
             loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
             msg = e["msg"].removeprefix("Value error, ")
+            if e["type"] in ("float_type", "int_type"):
+                msg += " (a JSON number: not a string, not true or false)"
+            elif e["type"] == "string_pattern_mismatch" and e["loc"][-1] == "name":
+                msg = "names are 1-128 letters, digits, '_', '.' or '-'"
             if e["type"] == "extra_forbidden":
-                msg = f"unknown field; allowed: {_fields(model)}"
+                msg = f"unknown field; allowed: {_allowed_at(model, e['loc'][:-1]) or _fields(model)}"
             parts.append(f"{loc}: {msg}")
         raise DecodeError(f"{what}: " + "; ".join(parts)) from None
 
 
 def _fields(model) -> str:
     return ", ".join(model.model_fields)
+
+
+def _models_in(annotation) -> list[type[BaseModel]]:
+    """The message models an annotation may hold (through Optional, Annotated, list and unions)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    return [m for arg in get_args(annotation) for m in _models_in(arg)]
+
+
+def _allowed_at(model: type[BaseModel], loc: tuple) -> str | None:
+    """The fields allowed in the object at `loc` (a validation error's location) inside `model`."""
+    models = [model]
+    for part in loc:
+        if isinstance(part, int):
+            continue  # an index into a list: the same models
+        nxt = []
+        for mdl in models:
+            if part in mdl.model_fields:
+                nxt += _models_in(mdl.model_fields[part].annotation)
+            elif "type" in mdl.model_fields and part in get_args(mdl.model_fields["type"].annotation):
+                nxt.append(mdl)  # a tagged union's member, named by its tag
+        models = nxt
+    return _fields(models[0]) if len(models) == 1 else None
 
 
 def dumps(obj) -> bytes:
@@ -281,23 +313,41 @@ def encode_joint_state_rosbags(stamp: float, names, position, velocity=None, fra
     return bytes(ts.serialize_cdr(msg, JOINT_STATE))
 
 
-def decode_joint_state(data: bytes, joint_names) -> tuple[float, np.ndarray, np.ndarray | None]:
-    """(stamp [s], q in `joint_names` order, qd or None); missing joints or NaN are DecodeErrors."""
+def decode_joint_state(data: bytes, joint_names, frames=None) -> tuple[float, np.ndarray, np.ndarray | None]:
+    """(stamp [s], q in `joint_names` order, qd or None). DecodeErrors say what is wrong: missing or duplicate
+    names, arrays of the wrong length, NaN or inf anywhere, an impossible stamp, a frame_id not in `frames`
+    (None: any)."""
     msg = _decode(data, JOINT_STATE, "joint_states")
     names = list(msg.name)
     pos = np.asarray(msg.position, np.float64)
     if len(pos) != len(names):
         raise DecodeError(f"joint_states: {len(names)} names but {len(pos)} positions")
+    if len(set(names)) != len(names):
+        twice = sorted({n for n in names if names.count(n) > 1})
+        raise DecodeError(f"joint_states: joints {twice} are named more than once")
     missing = [n for n in joint_names if n not in names]
     if missing:
         raise DecodeError(f"joint_states: joints {missing} are missing; names given: {names}")
+    for field in ("velocity", "effort"):
+        arr = np.asarray(getattr(msg, field), np.float64)
+        if len(arr) not in (0, len(names)):
+            raise DecodeError(f"joint_states: {len(arr)} {field} values for {len(names)} names (give none or one each)")
+        if not np.all(np.isfinite(arr)):
+            raise DecodeError(f"joint_states: {field} contains NaN or inf")
     idx = [names.index(n) for n in joint_names]
     q = pos[idx]
     if not np.all(np.isfinite(q)):
         raise DecodeError("joint_states: positions contain NaN or inf")
+    st = msg.header.stamp
+    if st.sec < 0 or not 0 <= st.nanosec < 1_000_000_000:
+        raise DecodeError(
+            f"joint_states: stamp sec={st.sec} nanosec={st.nanosec} is not a time (sec >= 0, nanosec < 1e9)"
+        )
+    if frames is not None and msg.header.frame_id not in frames:
+        raise DecodeError(f"joint_states: frame_id {msg.header.frame_id!r} is not one of {sorted(frames)}")
     vel = np.asarray(msg.velocity, np.float64)
     qd = vel[idx] if len(vel) == len(names) else None
-    return _time_of(msg.header.stamp), q, qd
+    return _time_of(st), q, qd
 
 
 def encode_trajectory(start: float, names, times, q, qd, qdd, frame: str = "") -> bytes:
@@ -375,6 +425,10 @@ def decode_cloud(data: bytes, what: str = "cloud") -> tuple[float, np.ndarray, i
     raw = np.asarray(msg.data, np.uint8)
     if step < 12 or len(raw) != n * step:
         raise DecodeError(f"{what}: {len(raw)} data bytes for {n} points of {step} bytes")
+    if int(msg.row_step) != int(msg.width) * step:
+        raise DecodeError(f"{what}: row_step {msg.row_step} is not width x point_step = {int(msg.width) * step}")
+    if any(offs[c][0] + 4 > step for c in "xyz"):
+        raise DecodeError(f"{what}: fields x, y, z at offsets {[offs[c][0] for c in 'xyz']} overrun point_step {step}")
     rows = raw.reshape(n, step)
     o = offs["x"][0]
     if offs["y"][0] == o + 4 and offs["z"][0] == o + 8:  # the usual layout: x, y, z side by side, one copy

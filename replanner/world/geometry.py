@@ -198,3 +198,17 @@ def shape_to_trimesh(shape: Shape) -> trimesh.Trimesh:
     if isinstance(shape, Cylinder):
         return trimesh.creation.cylinder(radius=shape.radius, height=shape.length, sections=32)
     return trimesh.Trimesh(shape.vertices, shape.faces, process=False)
+
+
+def encloses_base(shape: Shape, pose: np.ndarray, margin: float = 0.001) -> bool:
+    """Does the shape at `pose` (base frame) hold the base frame's origin more than `margin` [m] inside it (an
+    object around the robot, or a typo of its size)? A mesh counts by its convex hull."""
+    p = -pose[:3, :3].T @ pose[:3, 3]  # the origin in the shape's frame
+    if isinstance(shape, Box):
+        return bool(np.all(np.abs(p) < np.asarray(shape.size) / 2 - margin))
+    if isinstance(shape, Sphere):
+        return bool(np.linalg.norm(p) < shape.radius - margin)
+    if isinstance(shape, Cylinder):
+        return bool(np.hypot(p[0], p[1]) < shape.radius - margin and abs(p[2]) < shape.length / 2 - margin)
+    hull = trimesh.Trimesh(shape.vertices, process=False).convex_hull
+    return bool(hull.nearest.signed_distance(p[None])[0] > margin)

@@ -169,6 +169,11 @@ class World:
         """
         with self._lock:
             obj = self._get_static(name)
+            if self.robot.frame_offset(link)[0] == 0:
+                raise WorldError(
+                    f"{link} does not move (it is fixed to the base): an object on it is a static object; "
+                    "attach to a link a joint moves"
+                )
             T_base_link = self.robot.link_pose(self.robot.check_q(q, "q"), link)
             T_link_object = invert_transform(T_base_link) @ obj.pose
             touch = self._touch_links(link, touch_links)

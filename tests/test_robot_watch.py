@@ -1,0 +1,97 @@
+"""The robot does not trust a dead service: SIGKILL of `replanner serve` mid-motion, real processes on loopback."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from replanner.apps.client import Client
+from replanner.config import parse_config
+from replanner.world.robot import RobotModel
+from tests.conftest import CONFIGS
+from tests.service_helpers import Stack, free_port, node_session
+from tests.test_service import HOME, Recorder
+
+FAR = [2.0, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785]
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                out.append(int(d.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def _wait(pred, timeout: float, what: str, stack=None) -> None:
+    end = time.monotonic() + timeout  # bounds a hung process only: what is asserted comes from the joint states
+    while time.monotonic() < end:
+        if pred():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}" + (f"\n{stack.logs()}" if stack else ""))
+
+
+def test_sigkill_of_the_service_mid_motion_the_robot_brakes_along_its_path(tmp_path):
+    data = yaml.safe_load((CONFIGS / "panda.yaml").read_text())
+    port = free_port()
+    data["transport"] = {**data.get("transport", {}), "endpoint": f"tcp/127.0.0.1:{port}"}
+    data["controller"] = {"speed_separation": {"enabled": False}, "robot_watchdog": 1.0}
+    cfg_path = tmp_path / "panda_watch.yaml"
+    cfg_path.write_text(yaml.safe_dump(data))
+    cfg = parse_config(data, base_dir=CONFIGS)
+    robot = RobotModel.from_config(cfg.robot)
+    stack = Stack(str(cfg_path), tmp_path, serve_args=("--no-cameras",), port=port)
+    session = node_session(stack.endpoint)
+    rec = None
+    try:
+        client = Client(session, "panda", timeout=10.0)
+        stack.wait_alive(session, client.keys.alive)
+        rec = Recorder(session, client.keys, robot.joint_names)
+        _wait(lambda: client.state()["position"] is not None, 30, "the robot's joint states", stack)
+        assert client.send_goal(HOME).wait(30)["status"] == "succeeded"
+        client.send_goal(FAR, velocity_scale=0.15)
+        _wait(lambda: client.state()["state"] == "MONITORING", 20, "the motion", stack)
+        _wait(lambda: np.abs(rec.latest()[2]).max() > 0.05, 10, "the arm at speed", stack)
+        planning = _children(stack.serve.p.pid)
+        assert planning, "the service's planning process"
+        killed = time.time()
+        os.kill(stack.serve.p.pid, signal.SIGKILL)
+        _wait(lambda: np.abs(rec.latest()[2]).max() < 1e-9, 20, "the robot to stand", stack)
+        stamps = np.array([s for s, _, _ in rec.js])
+        Q = np.array([q for _, q, _ in rec.js])
+        V = np.array([v for _, _, v in rec.js])
+        after = stamps >= killed
+        stood = stamps[after][np.abs(V[after]).max(axis=1) < 1e-9][0]
+        # it braked on its own: short of the goal it was sent to, and braking began within 2 x the watchdog age
+        assert np.abs(Q[-1] - np.array(FAR)).max() > 0.3, "the robot ran on to the goal"
+        slowing = stamps[after][np.linalg.norm(V[after], axis=1) < 0.95 * np.linalg.norm(V[after][0])]
+        assert slowing[0] - killed <= 2 * cfg.controller.robot_watchdog, slowing[0] - killed
+        steps = np.abs(np.diff(Q[after], axis=0)) / np.maximum(np.diff(stamps[after])[:, None], 1e-3)
+        assert np.all(steps <= robot.limits.velocity * 1.05)  # no jump on the way
+        print(f"braking began {slowing[0] - killed:.3f} s after the kill; the arm stood {stood - killed:.3f} s after")
+        _wait(lambda: not any(_alive(p) for p in planning), 10, "the planning process to end")
+        assert "the service is lost" in stack.robot.tail(200)
+    finally:
+        if rec is not None:
+            rec.close()
+        session.close()
+        stack.stop()
