@@ -219,6 +219,48 @@ def bench_planning(
         _print_planning(result)
 
 
+@app.command("reflex")
+def bench_reflex(
+    config: ConfigOpt = "panda",
+    seed: int = typer.Option(0, min=0, help="Seed of the person's place, the arm's configuration, the vertices."),
+    n: int = typer.Option(30, min=1, help="Timed repetitions per row."),
+    load: LoadOpt = 0,
+    as_json: JsonOpt = False,
+) -> None:
+    """Seed 000's virtual forces (Table II setting): map creation and force computation per row."""
+    from replanner.bench import reflex
+
+    result = measured(load, lambda: reflex.run(resolve_config(config), seed=seed, n=n))
+    if as_json:
+        print_json(result)
+        return
+    pts, cores = result["frame_points"], result["cores"]
+    t = Table(title=f"seed 000 virtual forces: {result['robot']}, {pts:,} points in the frame, {cores} cores")
+    for col in ("voxel", "vertices", "voxels", "pairs < r_max", "map ms (median / p95)", "forces ms (median / p95)",
+                "paper GPU / CPU ms"):  # fmt: skip
+        t.add_column(col)
+    for r in result["rows"]:
+        m, f = r["map_creation_ms"], r["force_computation_ms"]
+        t.add_row(
+            f"{r['voxel_mm']:g} mm",
+            str(r["vertices"]),
+            f"{r['voxels']:,}",
+            f"{r['pairs_within_r_max']:,}",
+            f"{m['median']:.1f} / {m['p95']:.1f}",
+            f"{f['median']:.1f} / {f['p95']:.1f}",
+            f"{r['paper_gpu_ms']:g} / {r['paper_cpu_ms']:g}",
+        )
+    Console().print(t)
+    k, (w, wo) = result["seed_001_kernels"], result["seed_001_wall"]
+    u = k["update_ms"]
+    Console().print(
+        f"seed 001 kernels: {u['median']:.2f} / {u['p95']:.2f} ms per update (median / p95, n={u['n']}) for "
+        f"{k['points_of_interest']} points of interest; reaching past a wall, joint 4 ends "
+        f"{w['joint4_final_distance_m'] * 100:.1f} cm from it with avoidance, {wo['joint4_final_distance_m'] * 100:.1f}"
+        f" cm without (goal within {w['goal_error_m'] * 1e3:.1f} / {wo['goal_error_m'] * 1e3:.1f} mm)"
+    )
+
+
 @app.command("monitor")
 def bench_monitor(
     config: ConfigOpt = "panda",

@@ -156,6 +156,48 @@ def pick_and_place(
         session.close()
 
 
+@app.command("soak")
+def soak(
+    config: ConfigOpt = "demo",
+    minutes: float = typer.Option(60.0, min=0.5, help="How long to loop the pick-and-place [min]."),
+    seed: int = typer.Option(7, min=0, help="Seeds the operator's script."),
+    policy: str = typer.Option("replan", help="replan, stop-and-wait or none."),
+    every: float = typer.Option(60.0, min=5.0, help="Sample every this many seconds."),
+    json_path: str | None = typer.Option(None, "--json", help="Write the samples and totals to this JSON file."),
+    plot: str | None = typer.Option(None, "--plot", help="Draw memory and reaction latency over time to a PNG."),
+    log_dir: str | None = typer.Option(None, "--log-dir", help="Keep the processes' logs and the truth here."),
+    load: LoadOpt = 0,
+) -> None:
+    """The demo looping for minutes: every minute each process's memory, reaction latency, cycles, collisions."""
+    from . import demo as demo_mod
+    from . import soak as soak_mod
+
+    if policy not in demo_mod.POLICIES:
+        fail(typer.BadParameter(f"--policy must be one of {', '.join(demo_mod.POLICIES)}, got {policy!r}"))
+    console = Console()
+    try:
+        cfg = resolve_config(config)
+        _check_cell(cfg, config)
+        with Load(load) as busy:
+            result = soak_mod.run(
+                config, cfg, minutes=minutes, seed=seed, policy=policy, every=every, log_dir=log_dir, console=console
+            )
+        result["load"] = busy.describe()
+        soak_mod.write(result, json_path, plot)
+    except ReplannerError as err:
+        fail(err)
+    for r in result["samples"]:
+        console.print(
+            f"min {r['minute']:5.1f}: cycles {r['cycles']}, collisions {r['collisions']}, rejections "
+            f"{r['rejections']}, T_r p50/p99 {r['reaction_time_s']['p50']}/{r['reaction_time_s']['p99']} s, RSS MB "
+            + ", ".join(f"{k} {v:.0f}" for k, v in r["rss_mb"].items()),
+            highlight=False,
+        )
+    console.print(f"RSS growth (last sample vs minute 10, or the first): {result['growth']}")
+    if result["crashed"]:
+        fail(ReplannerError(f"a process crashed: {', '.join(result['crashed'])} (see {result['logs']})"), 1)
+
+
 @app.command("demo")
 def demo(
     config: ConfigOpt = "demo",

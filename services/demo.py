@@ -35,8 +35,10 @@ def run(
     log_dir: str | None = None,
     live: bool = True,
     console: Console | None = None,
+    tick=None,
 ) -> tuple[dict, object, dict]:
-    """Run one demo; returns (metrics, recording, run info)."""
+    """Run one demo; returns (metrics, recording, run info). `tick(elapsed, procs, recorder)` is called about
+    four times a second while it runs (the soak samples there)."""
     console = console or Console()
     logs = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix="replanner-demo-"))
     logs.mkdir(parents=True, exist_ok=True)
@@ -69,7 +71,7 @@ def run(
         procs.append(client_proc)
         t0 = time.time()
         try:
-            _watch(recorder, client_proc, procs, cycles, duration, t0, policy, live, console, cfg)
+            _watch(recorder, client_proc, procs, cycles, duration, t0, policy, live, console, cfg, tick)
         except KeyboardInterrupt:
             interrupted = True
             console.print("[yellow]interrupted: stopping the client, the sim and the service[/]")
@@ -128,7 +130,7 @@ def _completed(r) -> int:
     return sum(1 for e in r.truth if e["kind"] == "placed" and e.get("on") != e.get("picked_from"))
 
 
-def _watch(recorder, client_proc, procs, cycles, duration, t0, policy, live, console, cfg) -> None:
+def _watch(recorder, client_proc, procs, cycles, duration, t0, policy, live, console, cfg, tick=None) -> None:
     def view() -> Table:
         r = recorder.snapshot()
         done = _completed(r)
@@ -147,6 +149,8 @@ def _watch(recorder, client_proc, procs, cycles, duration, t0, policy, live, con
         return t
 
     def finished() -> bool:
+        if tick is not None:
+            tick(time.time() - t0, procs, recorder)
         if not client_proc.alive():
             return True
         if duration is not None and time.time() - t0 > duration:

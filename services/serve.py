@@ -21,10 +21,11 @@ from replanner.planning import JointGoal, PoseGoal
 from replanner.stack import build_stack
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
-from replanner.world.geometry import encloses_base
+from replanner.world.geometry import encloses_base, gap_to_links
 from replanner.world.transforms import check_transform
 
 log = logging.getLogger(__name__)
+MAX_GRASP_GAP = 0.05  # [m] an attached object is held: this close to the link that carries it (suction: ~3 cm)
 
 
 class Service:
@@ -314,7 +315,16 @@ class Service:
 
     def _q_scene_attach(self, payload):
         req = m.parse_json(m.SceneAttach, payload, "scene/attach")
-        self.world.attach(req.name, req.link, self._current_q(), req.touch_links, req.support)
+        q = self._current_q()
+        obj = self.world.objects.get(req.name)
+        if obj is not None and req.link in self.robot.link_names:
+            gap = gap_to_links(self.robot, q, {req.link, *(req.touch_links or ())}, obj.shape, obj.pose)
+            if gap > MAX_GRASP_GAP:  # a carried object is held: not a table half a metre below the hand
+                raise InvalidInputError(
+                    f"{req.name!r} is {gap:.3f} m from {req.link}: only an object the gripper holds (within "
+                    f"{MAX_GRASP_GAP} m of the link or its touch_links) can be attached"
+                )
+        self.world.attach(req.name, req.link, q, req.touch_links, req.support)
         return {"attached": req.name, "link": req.link}
 
     def _q_scene_detach(self, payload):

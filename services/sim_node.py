@@ -21,6 +21,7 @@ from replanner.sim.config import CellConfig
 from replanner.sim.keys import sim_keys
 from replanner.sim.physics import PhysicsSim
 from replanner.transport.keys import Keys
+from replanner.transport.watch import ServiceWatch
 from replanner.world.robot import RobotModel
 
 log = logging.getLogger(__name__)
@@ -59,6 +60,7 @@ class SimNode:
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._decl: list = []
         self._log = None
+        self.cfg, self.watch = cfg, None
 
     def start(self) -> SimNode:
         s, sim = self.session, self.sim
@@ -74,9 +76,15 @@ class SimNode:
             s.declare_queryable(self.skeys["state"], self._queryable(lambda _request: sim.state())),
         ]
         sim.start()
+        self.watch = ServiceWatch(s, self.keys, self.cfg.controller.robot_watchdog, self._lost)
         return self
 
+    def _lost(self, reason: str) -> None:
+        self.sim.stop_along(f"the service is lost: {reason}")
+
     def stop(self) -> None:
+        if self.watch is not None:
+            self.watch.close()
         for d in self._decl:
             d.undeclare()
         self.sim.stop()  # its last truth event goes out here; queries still waiting are answered with an error

@@ -43,6 +43,18 @@ def test_bench_collision_json():
     assert abs(layer["free_for_certain"] + layer["contact_for_certain"] + layer["unsure_to_fcl"] - 1.0) < 1e-9
 
 
+def test_bench_reflex_json():
+    out = replanner("bench", "reflex", "--json", "--n", "2")
+    assert out.returncode == 0, out.stderr
+    r = json.loads(out.stdout)
+    assert [(row["voxel_mm"], row["vertices"]) for row in r["rows"]] == [(10, 4701), (5, 4701), (10, 2468), (5, 2468)]
+    for row in r["rows"]:
+        assert row["voxels"] > 1000 and row["pairs_within_r_max"] > 0 and row["force_computation_ms"]["n"] == 2
+    assert r["seed_001_kernels"]["update_ms"]["n"] == 200
+    w, wo = r["seed_001_wall"]
+    assert w["joint4_final_distance_m"] > wo["joint4_final_distance_m"]
+
+
 def test_bench_collision_table_for_iiwa_profile_by_name():
     out = replanner("bench", "collision", "-c", "iiwa", "--runs", "1", "--n", "100", "--voxels", "1000")
     assert out.returncode == 0, out.stderr

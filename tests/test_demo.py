@@ -89,6 +89,36 @@ def test_short_demo_end_to_end(tmp_path):
     assert "cycles completed" in r.stdout
 
 
+def test_a_three_minute_soak_samples_every_process(tmp_path):
+    """The CI's soak: the demo looping for 3 minutes, sampled every 30 s (the hour-long one is run by hand)."""
+    out, plot = tmp_path / "soak.json", tmp_path / "soak.png"
+    r = subprocess.run(
+        replanner_cmd(
+            "soak",
+            "--minutes",
+            "3",
+            "--every",
+            "30",
+            "--json",
+            str(out),
+            "--plot",
+            str(plot),
+            "--log-dir",
+            str(tmp_path),
+        ),  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    res = json.loads(out.read_text())
+    assert len(res["samples"]) >= 5 and res["cycles"] >= 5 and not res["crashed"], res["samples"]
+    last = res["samples"][-1]
+    assert {"serve", "sim", "pick-and-place", "serve child 0"} <= set(last["rss_mb"]), last
+    assert res["collisions"] == 0, res["metrics"]["collisions_by_object"]
+    assert set(res["growth"]) >= {"serve", "sim"} and plot.stat().st_size > 10_000
+
+
 def test_metrics_come_from_truth_and_transitions():
     """A cycle counts only when the sim saw the part set down in the other bin; reactions pair with truth."""
     rec = Recording(

@@ -66,7 +66,7 @@ def test_sigkill_of_the_service_mid_motion_the_robot_brakes_along_its_path(tmp_p
         client = Client(session, "panda", timeout=10.0)
         stack.wait_alive(session, client.keys.alive)
         rec = Recorder(session, client.keys, robot.joint_names)
-        _wait(lambda: client.state()["position"] is not None, 30, "the robot's joint states", stack)
+        _wait(lambda: client.state()["position"] is not None and rec.js, 30, "the robot's joint states", stack)
         assert client.send_goal(HOME).wait(30)["status"] == "succeeded"
         client.send_goal(FAR, velocity_scale=0.15)
         _wait(lambda: client.state()["state"] == "MONITORING", 20, "the motion", stack)

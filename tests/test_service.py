@@ -353,6 +353,23 @@ REQUESTS = [
         "enclose the robot's base",
     ),
     ("attach to the fixed base", "scene/attach", {"name": "table", "link": "panda_link0"}, "fixed to the base"),
+    ("attach the table to the hand", "scene/attach", {"name": "table", "link": "panda_hand"}, "only an object the"),
+    ("padding too large", "goal", {"id": "g", "joints": HOME, "padding": 0.5}, "padding: Input should be less"),
+    ("deadline as a string", "goal", {"id": "g", "joints": HOME, "deadline": "1"}, "deadline: Input should be a valid"),
+    ("a boolean joint", "goal", {"id": "g", "joints": [True, *HOME[1:]]}, "joints.0: Input should be a valid"),
+    ("goal id too long", "goal", {"id": "g" * 129, "joints": HOME}, "at most 128"),
+    ("empty name", "scene/remove", {"name": ""}, "at least 1 character"),
+    ("name too long", "scene/remove", {"name": "n" * 129}, "at most 128"),
+    ("map box NaN", "map/get", b'{"min": [NaN, 0, 0], "max": [1, 1, 1]}', "finite"),
+    ("pose position of two", "scene/move", {"name": "table", "pose": {"position": [0, 0]}}, "at least 3"),
+    (
+        "quaternion as strings",
+        "scene/move",
+        {"name": "table", "pose": {"position": [0, 0, 0], "quat_xyzw": ["0"] * 4}},
+        "not a string",
+    ),  # fmt: skip
+    ("cancel with a number", "cancel", {"id": 5}, "id: Input should be a valid string"),
+    ("a null name", "scene/remove", {"name": None}, "valid string"),
     (
         "both targets",
         "goal",

@@ -56,6 +56,8 @@ class Recorder:
         try:
             msg = json.loads(sample.payload.to_bytes())
             item = {"stamp": msg["stamp"], "state": msg["state"], "map_voxels": msg.get("map_voxels", 0)}
+            if isinstance(msg.get("rejections"), dict):
+                item["rejections"] = sum(msg["rejections"].values())
             if isinstance(msg.get("latency"), dict):
                 item["latency"] = msg["latency"]
         except (ValueError, KeyError, TypeError):

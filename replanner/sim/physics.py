@@ -154,6 +154,12 @@ class PhysicsSim:
             return
         self.add_trajectory(start, traj)
 
+    def stop_along(self, reason: str) -> None:
+        """The robot's own stop (the service is lost): brake along the path it is on (thread-safe)."""
+        if self.timeline.stop_along(self.t, self.robot.limits.acceleration) is not None:
+            log.warning("braking along the path: %s", reason)
+            self.event("robot_stop", reason=reason)
+
     def add_trajectory(self, start: float, traj: SampledTrajectory) -> None:
         """Follow `traj` from `start` [s, wall clock] on, replacing what would run from then; one from rest that
         arrives after its start starts when it arrives (thread-safe)."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -212,3 +213,19 @@ def encloses_base(shape: Shape, pose: np.ndarray, margin: float = 0.001) -> bool
         return bool(np.hypot(p[0], p[1]) < shape.radius - margin and abs(p[2]) < shape.length / 2 - margin)
     hull = trimesh.Trimesh(shape.vertices, process=False).convex_hull
     return bool(hull.nearest.signed_distance(p[None])[0] > margin)
+
+
+def gap_to_links(robot, q, links, shape: Shape, pose: np.ndarray) -> float:
+    """Distance [m] from a shape at `pose` to the nearest collision body of `links` (and the links rigidly fixed to
+    them) at configuration q; 0 when they touch."""
+    frames = {robot.link_frame_index(n) for n in links}
+    near = [b for b in robot.bodies if robot.link_frame_index(b.link) in frames]
+    if not near:
+        return math.inf
+    o = fcl.CollisionObject(to_fcl(shape), fcl.Transform(pose[:3, :3], pose[:3, 3]))
+    best = math.inf
+    for b in near:
+        T = robot.link_pose(q, b.link) @ b.T_link_body
+        other = fcl.CollisionObject(to_fcl(b.shape), fcl.Transform(T[:3, :3], T[:3, 3]))
+        best = min(best, max(0.0, fcl.distance(o, other, fcl.DistanceRequest(), fcl.DistanceResult())))
+    return best
