@@ -40,6 +40,19 @@ def _check_cell(cfg, config: str) -> None:
         )
 
 
+def _demo_cell(config: str, policy: str):
+    """The cell config of a demo or a soak: a known policy (else exit 2), the bins in the scene, cameras."""
+    from .demo import POLICIES
+
+    if policy not in POLICIES:
+        fail(typer.BadParameter(f"--policy must be one of {', '.join(POLICIES)}, got {policy!r}"))
+    cfg = resolve_config(config)
+    _check_cell(cfg, config)
+    if cfg.perception is None or not cfg.perception.sensors:
+        raise ConfigError(f"{config}: the demo needs cameras (perception.sensors)")
+    return cfg
+
+
 @app.command("sim")
 def sim(
     config: ConfigOpt = "demo",
@@ -169,15 +182,11 @@ def soak(
     load: LoadOpt = 0,
 ) -> None:
     """The demo looping for minutes: every minute each process's memory, reaction latency, cycles, collisions."""
-    from . import demo as demo_mod
     from . import soak as soak_mod
 
-    if policy not in demo_mod.POLICIES:
-        fail(typer.BadParameter(f"--policy must be one of {', '.join(demo_mod.POLICIES)}, got {policy!r}"))
     console = Console()
     try:
-        cfg = resolve_config(config)
-        _check_cell(cfg, config)
+        cfg = _demo_cell(config, policy)
         with Load(load) as busy:
             result = soak_mod.run(
                 config, cfg, minutes=minutes, seed=seed, policy=policy, every=every, log_dir=log_dir, console=console
@@ -218,14 +227,9 @@ def demo(
     from . import demo as demo_mod
 
     logging.getLogger().setLevel(logging.INFO if verbose else logging.WARNING)
-    if policy not in demo_mod.POLICIES:
-        fail(typer.BadParameter(f"--policy must be one of {', '.join(demo_mod.POLICIES)}, got {policy!r}"))
     console = Console()
     try:
-        cfg = resolve_config(config)
-        _check_cell(cfg, config)
-        if cfg.perception is None or not cfg.perception.sensors:
-            raise ConfigError(f"{config}: the demo needs cameras (perception.sensors)")
+        cfg = _demo_cell(config, policy)
         with Load(load) as busy:
             metrics, rec, info = demo_mod.run(
                 config,

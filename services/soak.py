@@ -23,7 +23,8 @@ def _rss_mb(pid: int) -> float | None:
     return None
 
 
-def _children(pid: int) -> list[int]:
+def children(pid: int) -> list[int]:
+    """Process ids whose parent is `pid` (Linux /proc)."""
     out = []
     for d in Path("/proc").iterdir():
         if d.name.isdigit():
@@ -51,7 +52,7 @@ class Sampler:
             if p.alive():
                 rss[p.name] = _rss_mb(p.p.pid)
                 if p.name == "serve":
-                    for i, c in enumerate(_children(p.p.pid)):
+                    for i, c in enumerate(children(p.p.pid)):
                         rss[f"serve child {i}"] = _rss_mb(c)
         r = recorder.snapshot()
         lat = [s["latency"] for s in r.status if s.get("latency") and s["stamp"] >= r.status[-1]["stamp"] - self.every]

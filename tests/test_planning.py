@@ -7,8 +7,8 @@ import pytest
 
 from replanner.bench.scenes import add_table
 from replanner.errors import InvalidInputError
+from replanner.planning import GoalInvalid, NoSolution, Planner, PoseGoal, StartInvalid, UnknownPlanner
 from replanner.planning.ik import IKError, solve_ik
-from replanner.planning.planner import GoalInvalid, NoSolution, Planner, PoseGoal, StartInvalid, UnknownPlanner
 from replanner.world.collision import CollisionChecker
 from replanner.world.geometry import Box
 from replanner.world.scene import World

@@ -9,28 +9,16 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from replanner_services.soak import children as _children
 
 from replanner.apps.client import Client
 from replanner.config import parse_config
 from replanner.world.robot import RobotModel
 from tests.conftest import CONFIGS
 from tests.service_helpers import Stack, free_port, node_session
-from tests.test_service import HOME, Recorder
+from tests.test_service import HOME, Recorder, _wait
 
 FAR = [2.0, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785]
-
-
-def _children(pid: int) -> list[int]:
-    out = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                out.append(int(d.name))
-    return out
 
 
 def _alive(pid: int) -> bool:
@@ -39,15 +27,6 @@ def _alive(pid: int) -> bool:
     except OSError:
         return False
     return state != "Z"
-
-
-def _wait(pred, timeout: float, what: str, stack=None) -> None:
-    end = time.monotonic() + timeout  # bounds a hung process only: what is asserted comes from the joint states
-    while time.monotonic() < end:
-        if pred():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}" + (f"\n{stack.logs()}" if stack else ""))
 
 
 def test_sigkill_of_the_service_mid_motion_the_robot_brakes_along_its_path(tmp_path):

@@ -11,7 +11,7 @@ import numpy as np
 from ..config import ReplannerConfig
 from ..errors import InvalidInputError, ReplannerError
 from ..planning.ik import IKError, solve_ik
-from ..planning.planner import PlanningError
+from ..planning.types import PlanningError
 from ..stack import build_stack
 from ..stats import summary
 from ..trajectory import Trajectory, distance_to_polyline

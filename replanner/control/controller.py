@@ -21,7 +21,7 @@ from transitions import Machine
 
 from ..errors import ReplannerError, UnknownNameError
 from ..monitor import Monitor
-from ..planning.planner import GoalInvalid, Planner, StartInvalid
+from ..planning import GoalInvalid, Planner, StartInvalid
 from ..planning.worker import JobPurpose, PlanAnswer, PlanJob, PlanWorker
 from ..sections import AfterBrake, ControllerConfig, Reaction
 from ..trajectory import Trajectory, TrajectoryError, TrajectoryGenerator

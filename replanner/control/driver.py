@@ -57,8 +57,9 @@ class KinematicDriver:
         self._thread: threading.Thread | None = None
         self._wait = wait or self._stop.wait
         self.silent = False  # tests stop the stream to exercise the controller's watchdog
-        self.acceleration = np.asarray(acceleration, dtype=float) if acceleration is not None else np.full(1, 5.0)
-        self.stalls, self.stall_after = 0, stall_after
+        if stall_after is not None and acceleration is None:
+            raise ValueError("a driver that stops after a stall needs the acceleration it may stop with")
+        self.acceleration, self.stalls, self.stall_after = acceleration, 0, stall_after
 
     def subscribe(self, callback: Callable[[JointState], None]) -> None:
         self._subscribers.append(callback)

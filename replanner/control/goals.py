@@ -10,7 +10,8 @@ from enum import Enum
 import numpy as np
 
 from ..errors import InvalidInputError, ReplannerError
-from ..planning.planner import JointGoal, PoseGoal, planner_class
+from ..planning.planner import planner_class
+from ..planning.types import JointGoal, PoseGoal
 from ..world.paddings import check_padding
 
 MAX_ID_LENGTH = 128

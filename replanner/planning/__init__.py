@@ -1,20 +1,18 @@
 """The planning room: OMPL over the joint space within a deadline, IK for pose goals, a background plan worker."""
 
+from ..world.paddings import padded_checker
 from .ik import IKError, IKResult, solve_ik
-from .planner import (
-    PLANNERS,
+from .planner import PLANNERS, Planner, planner_class
+from .types import (
     GoalInvalid,
     JointGoal,
     NoSolution,
-    Planner,
     PlanningCanceled,
     PlanningError,
     PlanResult,
     PoseGoal,
     StartInvalid,
     UnknownPlanner,
-    padded_checker,
-    planner_class,
 )
 from .worker import InlineWorker, JobPurpose, PlanAnswer, PlanJob, PlanWorker, ProcessWorker, ThreadWorker
 

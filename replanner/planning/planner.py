@@ -22,16 +22,15 @@ from ompl import util as ou
 
 from ..errors import InvalidInputError
 from ..world.collision import CollisionChecker, Contact, ContactKind
-from ..world.paddings import Paddings, padded_checker  # noqa: F401  (padded_checker: re-exported)
+from ..world.paddings import Paddings
 from ..world.sphere_layer import FastChecker
 from ..world.transforms import make_transform
 from .ik import IKError, solve_ik
-from .types import (  # noqa: F401  (re-exported: planner.py was their home)
+from .types import (
     GoalInvalid,
     JointGoal,
     NoSolution,
     PlanningCanceled,
-    PlanningError,
     PlanResult,
     PoseGoal,
     StartInvalid,

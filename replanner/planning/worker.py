@@ -26,7 +26,8 @@ import numpy as np
 from ..errors import ReplannerError
 from ..trajectory import Trajectory, TrajectoryGenerator
 from ..world.scene import WorldSnapshot
-from .planner import Planner, PlanningError, PlanResult
+from .planner import Planner
+from .types import PlanningError, PlanResult
 
 log = logging.getLogger(__name__)
 

@@ -56,7 +56,6 @@ class SphereScene:
         self.in_local = np.ascontiguousarray(np.concatenate(in_local))
         self.in_rad = np.concatenate(in_rad)
         self.in_first = np.array(in_first, dtype=np.int64)
-        self.slot = np.array(slot, dtype=np.int64)
         self.local = np.ascontiguousarray(np.concatenate(local))
         self.radius = np.concatenate(rad)
         self.body = np.array(body, dtype=np.int64)
@@ -73,7 +72,7 @@ class SphereScene:
             mid = (c - r[:, None]).min(axis=0) / 2 + (c + r[:, None]).max(axis=0) / 2
             ball_c.append(mid)
             ball_r.append(float((np.linalg.norm(c - mid, axis=1) + r).max()))
-            ball_slot.append(self.slot[first[bi]])
+            ball_slot.append(slot[first[bi]])
         self.ball_c, self.ball_r = np.array(ball_c), np.array(ball_r)
         self.ball_slot = np.array(ball_slot, dtype=np.int64)
         # obstacles: kind, world -> obstacle (3, 4), dimensions, index in the scene's obstacle list
