@@ -336,6 +336,40 @@ def bench_reaction(
     )
 
 
+@app.command("view")
+def bench_view(
+    config: ConfigOpt = "panda",
+    voxels: int = typer.Option(50_000, min=100, help="Voxels the camera fills the map with (at most its points)."),
+    seconds: float = typer.Option(20.0, min=5.0, help="Length of each phase [s]."),
+    rounds: int = typer.Option(2, min=1, help="Rounds of (without, with) the view."),
+    browser: bool = typer.Option(False, "--browser", help="Also a headless chromium on the page (same machine)."),
+    seed: int = typer.Option(0, min=0, help="Seeds the map's points."),
+    load: LoadOpt = 0,
+    as_json: JsonOpt = False,
+) -> None:
+    """The web view's cost to the service (monitor checks/s with and without it) and its drawing rate."""
+    from . import view_bench
+
+    result = measured(
+        load, lambda: view_bench.run(config, voxels=voxels, seconds=seconds, rounds=rounds, seed=seed, browser=browser)
+    )
+    if as_json:
+        print_json(result)
+        return
+    t = Table(title=f"web view: {result['robot']}, {result['map_voxels']:,} voxels, browser {result['browser']}")
+    for col in ("figure", "value", "bar"):
+        t.add_column(col)
+    t.add_row("monitor checks/s without the view", f"{result['monitor_rate_without_hz']:.1f}", "-")
+    t.add_row("monitor checks/s with the view", f"{result['monitor_rate_with_hz']:.1f}", "-")
+    t.add_row("ratio", f"{result['ratio']:.3f}", f"≥ {result['bars']['ratio']}")
+    t.add_row(
+        "view updates/s (median)",
+        f"{result['view_updates_per_s_median']:.1f}",
+        f"≥ {result['bars']['view_updates_per_s']}",
+    )
+    Console().print(t)
+
+
 @app.command("service")
 def bench_service(
     config: ConfigOpt = "panda",

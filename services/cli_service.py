@@ -122,6 +122,103 @@ def router(
     session.close()
 
 
+@app.command("view")
+def view(
+    config: ConfigOpt = "panda",
+    robot: RobotOpt = None,
+    host: str = typer.Option(
+        "127.0.0.1", "--host", help="Where the page listens; 0.0.0.0 to open it from another machine."
+    ),
+    port: int = typer.Option(8080, "--port", min=0, max=65535, help="The page's port (0: any free one)."),
+    rate: float = typer.Option(20.0, "--rate", min=1.0, max=60.0, help="Drawing rate [Hz]."),
+    map_hz: float = typer.Option(2.0, "--map-hz", min=0.1, max=10.0, help="How often the map is fetched [Hz]."),
+    mode: ModeOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """The cell live in a browser: robot (measured, and a ghost at the commanded joints), map, objects, path,
+    state, latency, cameras, the sim's operator; send or cancel goals from the page. Read-only otherwise."""
+    import signal
+    import threading
+
+    from replanner.transport.session import open_session
+
+    from .view import CellView
+
+    try:
+        cfg = resolve_config(config)
+        session = open_session(ZenohFlags.of(mode, connect, listen, zenoh_config).config(cfg.transport, "node"))
+    except ReplannerError as err:
+        fail(err)
+    try:
+        cell = CellView(cfg, session, host, port, rate, map_hz, robot).start()
+    except OSError as err:
+        session.close()
+        fail(ConfigError(f"cannot serve the page on {host}:{port}: {err} (choose another --port)"))
+    print(f"replanner view: open {cell.url} (Ctrl-C stops)", flush=True)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        while not stop.wait(0.5):
+            pass
+    except KeyboardInterrupt:
+        pass
+    cell.stop()
+    session.close()
+
+
+@app.command("certs")
+def certs(
+    out: str = typer.Argument(
+        ..., metavar="DIR", help="Where to write the CA, the certificates and the Zenoh configs."
+    ),
+    identity: list[str] | None = typer.Option(
+        None,
+        "--identity",
+        "-i",
+        metavar="NAME:ROLE",
+        help="An identity and its role (service, robot, sensor, sim, client, router); repeatable. Default: "
+        "service:service robot:robot camera:sensor sim:sim operator:client router:router.",
+    ),
+    config: ConfigOpt = "panda",
+    robot: RobotOpt = None,
+    endpoint: str = typer.Option(
+        "tls/127.0.0.1:7447", "--endpoint", help="Where the service (peer to peer) or the router listens."
+    ),
+    host: list[str] | None = typer.Option(
+        None, "--host", help="Another DNS name or IP address the certificates are valid for; repeatable."
+    ),
+    days: int = typer.Option(365, "--days", min=1, max=3650, help="Validity of the identities' certificates."),
+    mount: str | None = typer.Option(
+        None, "--mount", help="Where the processes find DIR, if elsewhere (e.g. /certs in containers)."
+    ),
+    via_router: bool = typer.Option(
+        False, "--via-router", help="Everyone but the router is its client (else peers, the service listening)."
+    ),
+) -> None:
+    """The secure profile: a CA, a certificate per identity and per identity a Zenoh config with mutual TLS and
+    access control (only the service sends trajectories, only robots send joint states, only sensors send clouds,
+    only clients send goals; nothing for anyone else). Run each process with `--zenoh-config DIR/<name>.json5`;
+    see docs/security.md."""
+    from pathlib import Path
+
+    from replanner.transport.keys import Keys
+    from replanner.transport.secure import DEFAULT_IDENTITIES, Identity, parse_identities, write_profile
+
+    try:
+        cfg = resolve_config(config)
+        keys = Keys(robot or cfg.robot.name, cfg.transport.namespace)
+        ids = parse_identities(identity) if identity else [Identity(n, r) for n, r in DEFAULT_IDENTITIES.items()]
+        paths = write_profile(Path(out), keys, ids, endpoint, list(host or ()), days, mount, via_router)
+    except ReplannerError as err:
+        fail(err)
+    print(f"secure profile for {keys.root} in {out}: CA ca.pem (keep ca.key offline once the identities exist)")
+    for ident in ids:
+        where = Path(mount) / paths[ident.name].name if mount else paths[ident.name]
+        print(f"  {ident.name:<10} {ident.role:<8} --zenoh-config {where}")
+
+
 @app.command("robot")
 def robot(
     kinematic: bool = typer.Option(False, "--kinematic", help="Follow trajectories exactly (no physics)."),

@@ -220,6 +220,8 @@ def demo(
     plot: str | None = typer.Option(None, "--plot", help="Draw the timeline (state, clearance, events) to a PNG."),
     log_dir: str | None = typer.Option(None, "--log-dir", help="Keep the processes' logs and the truth here."),
     load: LoadOpt = 0,
+    view: bool = typer.Option(False, "--view", help="Serve the live web view too (`replanner view`); prints its URL."),
+    view_port: int = typer.Option(8080, "--view-port", min=0, max=65535, help="The web view's port (0: any free one)."),
     verbose: bool = typer.Option(False, "-v", "--verbose"),
 ) -> None:
     """Sim, service and pick-and-place client as three processes on loopback; a table of what happened."""
@@ -240,6 +242,7 @@ def demo(
                 policy=policy,
                 log_dir=log_dir,
                 console=console,
+                view_port=view_port if view else None,
             )
         metrics["load"] = busy.describe()
         demo_mod.write_outputs(metrics, rec, info, cfg, json_path, plot)

@@ -24,6 +24,19 @@ from .procs import Proc, replanner_cmd
 POLICIES = {"replan": "replan", "stop-and-wait": "stop_and_wait", "none": "none"}
 
 
+def _view_url(viewer: Proc, timeout: float = 60.0) -> str:
+    """The URL `replanner view` prints once its page is served (or what went wrong)."""
+    end = time.time() + timeout
+    while time.time() < end:
+        for line in viewer.tail(20).splitlines():
+            if "open http" in line:
+                return line.split("open ", 1)[1].split()[0]
+        if not viewer.alive():
+            return f"(the view did not start: {viewer.log})"
+        time.sleep(0.2)
+    return f"(the view is still starting: {viewer.log})"
+
+
 def run(
     config: str,
     cfg: ReplannerConfig,
@@ -36,9 +49,10 @@ def run(
     live: bool = True,
     console: Console | None = None,
     tick=None,
+    view_port: int | None = None,
 ) -> tuple[dict, object, dict]:
     """Run one demo; returns (metrics, recording, run info). `tick(elapsed, procs, recorder)` is called about
-    four times a second while it runs (the soak samples there)."""
+    four times a second while it runs (the soak samples there). `view_port`: also run `replanner view` there."""
     console = console or Console()
     logs = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix="replanner-demo-"))
     logs.mkdir(parents=True, exist_ok=True)
@@ -59,13 +73,20 @@ def run(
     procs = [serve, sim]
     session = node_session(endpoint)
     recorder = None
-    client_proc = None
+    client_proc = viewer = None
     interrupted = False
     t0 = t1 = time.time()
     try:
         client = Client(session, cfg.robot.name, cfg.transport.namespace, timeout=10.0)
         _wait_ready(client, session, procs, logs)
         recorder = Recorder(session, client.keys.root)
+        if view_port is not None:
+            viewer = Proc("view", replanner_cmd("view", "-c", c, "--port", str(view_port)), logs)
+            url = _view_url(viewer)
+            console.print(
+                f"[bold]live view: {url}[/] (open it in a browser; `ssh -L {view_port}:127.0.0.1:{view_port} "
+                "HOST` from another machine)"
+            )
         args = ["pick-and-place", "-c", c, "--cycles", str(cycles)]
         client_proc = Proc("pick-and-place", replanner_cmd(*args), logs)
         procs.append(client_proc)
@@ -84,6 +105,8 @@ def run(
         if recorder:
             recorder.close()
         session.close()
+        if viewer is not None:
+            viewer.stop(signal.SIGTERM, timeout=10)
         for p in (sim, serve):
             p.stop(signal.SIGINT, timeout=15)
     dead = [p.name for p in procs if p.p.returncode not in (0, -2, 130, None) and p is not client_proc]

@@ -16,12 +16,12 @@ def replanner_cmd(*args: str) -> list[str]:
 class Proc:
     """A child process whose output goes to a log file (read back on failure)."""
 
-    def __init__(self, name: str, args: list[str], log_dir: Path):
+    def __init__(self, name: str, args: list[str], log_dir: Path, cwd: Path | None = None):
         self.name = name
         self.log = log_dir / f"{name}.log"
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self._f = open(self.log, "w")  # noqa: SIM115 (closed in stop)
-        self.p = subprocess.Popen(args, stdout=self._f, stderr=subprocess.STDOUT, env=env)
+        self.p = subprocess.Popen(args, stdout=self._f, stderr=subprocess.STDOUT, env=env, cwd=cwd)
 
     def tail(self, n: int = 40) -> str:
         return "\n".join(self.log.read_text(errors="replace").splitlines()[-n:])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import logging
 import queue
 import signal
@@ -355,11 +356,16 @@ class Service:
         occ = self.world.snapshot().occupancy
         if occ is None or not len(occ):
             res = self.cfg.perception.resolution if self.cfg.perception is not None else None
-            return {"resolution": res, "stamp": occ.stamp if occ is not None else None, "count": 0, "voxels": []}
-        c = occ.centers
-        if req.min is not None:
-            c = c[np.all((c >= req.min) & (c <= req.max), axis=1)]
-        return {"resolution": occ.resolution, "stamp": occ.stamp, "count": len(c), "voxels": c.round(4).tolist()}
+            c = np.zeros((0, 3))
+            out = {"resolution": res, "stamp": occ.stamp if occ is not None else None, "count": 0}
+        else:
+            c = occ.centers
+            if req.min is not None:
+                c = c[np.all((c >= req.min) & (c <= req.max), axis=1)]
+            out = {"resolution": occ.resolution, "stamp": occ.stamp, "count": len(c)}
+        if req.encoding == "float32":  # a 75k-voxel map as JSON lists costs the service ~0.1 s of its GIL per query
+            return {**out, "encoding": "float32", "voxels": base64.b64encode(c.astype("<f4").tobytes()).decode()}
+        return {**out, "voxels": c.round(4).tolist()}
 
     def _q_map_clear(self, payload):
         m.parse_json(m.Empty, payload, "map/clear")

@@ -18,9 +18,8 @@ from replanner.config import ReplannerConfig
 from replanner.errors import InvalidInputError, ReplannerError
 from replanner.sim.cloud_publisher import CloudPublisher
 from replanner.sim.config import CellConfig
-from replanner.sim.keys import sim_keys
 from replanner.sim.physics import PhysicsSim
-from replanner.transport.keys import Keys
+from replanner.transport.keys import Keys, sim_keys
 from replanner.transport.watch import ServiceWatch
 from replanner.world.robot import RobotModel
 

@@ -84,3 +84,45 @@ def test_compose_file_parses_and_its_commands_exist():
         # the image's entry point is `replanner`: the same arguments must parse on the host
         out = subprocess.run(replanner_cmd(*cmd, "--help"), capture_output=True, text=True, timeout=60)
         assert out.returncode == 0, (cmd, out.stderr)
+
+
+def test_secure_compose_file_uses_the_identities_certs_writes(tmp_path):
+    """docker/compose.secure.yaml: its services exist in compose.yaml, each runs with an identity that the command in
+    its header writes (run here into tmp), and its commands parse."""
+    import re
+    import shlex
+    import subprocess
+
+    import yaml
+
+    from tests.service_helpers import replanner_cmd
+
+    text = (ROOT / "docker" / "compose.secure.yaml").read_text()
+    secure = yaml.safe_load(text)["services"]
+    assert set(secure) <= set(yaml.safe_load((ROOT / "docker" / "compose.yaml").read_text())["services"])
+    certs_line = re.search(r"#\s+(replanner certs .*)", text).group(1)
+    argv = shlex.split(certs_line)
+    out = subprocess.run(replanner_cmd(*argv[1:]), cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    for name, svc in secure.items():
+        assert "../certs:/certs:ro" in svc["volumes"], name
+        cmd = svc["command"]
+        conf = cmd[cmd.index("--config" if name == "router" else "--zenoh-config") + 1]
+        assert conf.startswith("/certs/") and (tmp_path / "certs" / conf.removeprefix("/certs/")).exists(), conf
+        written = (tmp_path / "certs" / conf.removeprefix("/certs/")).read_text()
+        assert '"/certs/ca.pem"' in written  # paths as the containers see them
+        if name != "router":
+            out = subprocess.run(replanner_cmd(*cmd, "--help"), capture_output=True, text=True, timeout=60)
+            assert out.returncode == 0, (cmd, out.stderr)
+
+
+def test_every_package_is_installed():
+    """A non-editable install (the Docker image) gets only the packages pyproject lists."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {
+        ".".join(p.parent.relative_to(ROOT).parts).replace("services", "replanner_services", 1)
+        for p in (ROOT / "replanner").rglob("__init__.py")
+    } | {"replanner_services", "replanner_configs"}
+    assert found <= listed, sorted(found - listed)

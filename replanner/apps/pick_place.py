@@ -15,7 +15,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..sim.config import TaskConfig
-from ..sim.keys import sim_keys
+from ..transport.keys import sim_keys
 from .client import Client, ServiceError
 
 log = logging.getLogger(__name__)

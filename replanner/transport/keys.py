@@ -59,3 +59,13 @@ KEYS = {
     "rejections": "rejections",
     "latency": "latency",
 }
+
+
+# the simulated cell's keys, under a robot's root: what clients of `replanner sim` talk to (streams: truth,
+# bodies; queries: gripper, state); here so that the secure profile's rules can name them
+SIM_KEYS = ("truth", "bodies", "gripper", "state")
+
+
+def sim_keys(root: str) -> dict[str, str]:
+    """`<root>/sim/<name>` for each of SIM_KEYS; `root` as in `Keys.root`."""
+    return {k: f"{root}/sim/{k}" for k in SIM_KEYS}

@@ -148,6 +148,9 @@ class SceneAttach(_Msg):
 class MapGet(_Msg):
     min: Vec3 | None = Field(None, description="corner of a box [m]: only voxels inside it are returned")
     max: Vec3 | None = None
+    encoding: Literal["json", "float32"] = Field(
+        "json", description="voxels as JSON lists, or as base64 of little-endian float32 x, y, z (big maps: cheaper)"
+    )
 
     @field_validator("min", "max")
     @classmethod

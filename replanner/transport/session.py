@@ -36,6 +36,8 @@ def make_config(
             raise ConfigError(f"{zenoh_file}: not a usable Zenoh JSON5 config ({err})", source=zenoh_file) from None
         if mode:
             conf.insert_json5("mode", json.dumps(mode))
+            if mode == "client" and not listen:  # a file written for a peer listens; a client cannot
+                conf.insert_json5("listen/endpoints", "[]")
         if connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
         if listen:
