@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from replanner_services.procs import Proc, replanner_cmd
 from replanner_services.soak import children as _children
 
 from replanner.apps.client import Client
@@ -74,3 +75,55 @@ def test_sigkill_of_the_service_mid_motion_the_robot_brakes_along_its_path(tmp_p
             rec.close()
         session.close()
         stack.stop()
+
+
+def test_sigkill_of_the_service_mid_motion_the_sim_brakes_along_its_path(tmp_path):
+    """The same for the physics sim (`replanner sim`): it watches the service and brakes along its path."""
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    cfg_path = tmp_path / "demo_watch.yaml"
+    cfg_path.write_text(
+        yaml.safe_dump(
+            {
+                "base": str(CONFIGS / "demo.yaml"),
+                "transport": {"endpoint": endpoint},
+                "controller": {"speed_separation": {"enabled": False}, "robot_watchdog": 1.0},
+            }
+        )
+    )
+    from replanner.sim.config import load_cell_config
+
+    cfg = load_cell_config(str(cfg_path))
+    robot = RobotModel.from_config(cfg.robot)
+    serve = Proc("serve", replanner_cmd("serve", "-c", str(cfg_path), "--no-cameras", "-l", endpoint), tmp_path)
+    sim = Proc(
+        "sim", replanner_cmd("sim", "-c", str(cfg_path), "--no-operator", "--no-cameras", "-e", endpoint), tmp_path
+    )
+    session = node_session(endpoint)
+    rec = None
+    try:
+        client = Client(session, "panda", timeout=10.0)
+        _wait(lambda: list(session.liveliness().get(client.keys.alive, timeout=0.5)), 60, "the service")
+        rec = Recorder(session, client.keys, robot.joint_names)
+        _wait(lambda: client.state()["not_ready"] is None and rec.js, 60, "the sim's joint states")
+        assert client.send_goal(HOME).wait(60)["status"] == "succeeded", serve.tail()
+        client.send_goal(FAR, velocity_scale=0.15)
+        _wait(lambda: client.state()["state"] == "MONITORING", 30, "the motion")
+        _wait(lambda: np.abs(rec.latest()[2]).max() > 0.05, 10, "the arm at speed")
+        killed = time.time()
+        os.kill(serve.p.pid, signal.SIGKILL)
+        _wait(lambda: np.abs(rec.latest()[2]).max() < 1e-3, 20, "the arm to stand")  # physics: not exactly 0
+        stamps = np.array([s for s, _, _ in rec.js])
+        Q = np.array([q for _, q, _ in rec.js])
+        V = np.array([v for _, _, v in rec.js])
+        after = stamps >= killed
+        assert np.abs(Q[-1] - np.array(FAR)).max() > 0.3, "the sim ran on to the goal"
+        slowing = stamps[after][np.linalg.norm(V[after], axis=1) < 0.95 * np.linalg.norm(V[after][0])]
+        assert slowing[0] - killed <= 2 * cfg.controller.robot_watchdog, slowing[0] - killed
+        _wait(lambda: "the service is lost" in sim.tail(200), 10, "the sim's log line")
+    finally:
+        if rec is not None:
+            rec.close()
+        session.close()
+        sim.stop()
+        serve.stop()

@@ -120,6 +120,7 @@ def cell(request, tmp_path):
         )
     )
     opened = []
+    camera = None
 
     def session(path=None, tls=None):
         """An open session, or None where Zenoh refuses to open one (a client that cannot reach its router)."""
@@ -155,12 +156,13 @@ def cell(request, tmp_path):
         )
         ns.procs, ns.logs, ns.tmp = procs, logs, tmp_path
         yield ns
-        camera.close()
         rec.close()
         client.close()
     except AssertionError as err:
         raise AssertionError(f"{err}\n{logs()}") from None
     finally:
+        if camera is not None:  # before its session closes, on every path
+            camera.close()
         for s in opened:
             s.close()
         for p in reversed(procs):
