@@ -155,6 +155,7 @@ class CellView:
         self.last_message = ""
         self._drawn = {"map": -1, "scene": -1, "trajectory": -1}
         self._drawn_q = self._drawn_qc = None
+        self._forearm = None  # the operator's capsule, made when the sim first says where it is
         self._objects: list = []
         self._attached: list = []  # (handle, link, T_link_object)
         self._build_gui()
@@ -331,7 +332,7 @@ class CellView:
         op = getattr(getattr(self.cfg, "sim", None), "operator", None)
         if op is None or len(pose) != 7 or not np.all(np.isfinite(pose)):
             return
-        if not hasattr(self, "_forearm"):
+        if self._forearm is None:
             mesh = trimesh.creation.capsule(height=op.arm_length, radius=op.arm_radius)
             mesh.visual.face_colors = (230, 180, 150, 255)
             self._forearm = self.server.scene.add_mesh_trimesh("/operator/forearm", mesh)

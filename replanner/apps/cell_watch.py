@@ -43,8 +43,6 @@ class CellWatch:
         self.map_period, self.scene_period = 1.0 / map_hz, 1.0 / scene_hz
         self._lock = threading.Lock()
         self.q: np.ndarray | None = None  # measured joints
-        self.js_stamp = 0.0
-        self.js_count = 0
         self.status: dict | None = None  # the service's last status (its `state`)
         self.status_at = 0.0  # [s, monotonic] when it came
         self.transitions: deque[dict] = deque(maxlen=8)
@@ -108,32 +106,34 @@ class CellWatch:
 
     def _on_js(self, sample) -> None:
         try:
-            stamp, q, _ = m.decode_joint_state(sample.payload.to_bytes(), self.joint_names)
+            _, q, _ = m.decode_joint_state(sample.payload.to_bytes(), self.joint_names)
         except (InvalidInputError, ValueError) as err:
             return self._bad("joint state", err)
         with self._lock:
-            self.q, self.js_stamp = np.asarray(q, float), float(stamp)
-            self.js_count += 1
+            self.q = np.asarray(q, float)
+
+    def _json_object(self, sample, what: str) -> dict | None:
+        """The sample's JSON object, or None (counted and logged) for anything else."""
+        try:
+            obj = json.loads(sample.payload.to_bytes())
+            if not isinstance(obj, dict):
+                raise ValueError("not a JSON object")
+        except ValueError as err:
+            self._bad(what, err)
+            return None
+        return obj
 
     def _on_status(self, sample) -> None:
-        try:
-            status = json.loads(sample.payload.to_bytes())
-            if not isinstance(status, dict):
-                raise ValueError("not a JSON object")
-        except ValueError as err:
-            return self._bad("status", err)
-        with self._lock:
-            self.status, self.status_at = status, time.monotonic()
+        status = self._json_object(sample, "status")
+        if status is not None:
+            with self._lock:
+                self.status, self.status_at = status, time.monotonic()
 
     def _on_transition(self, sample) -> None:
-        try:
-            tr = json.loads(sample.payload.to_bytes())
-            if not isinstance(tr, dict):
-                raise ValueError("not a JSON object")
-        except ValueError as err:
-            return self._bad("transition", err)
-        with self._lock:
-            self.transitions.append(tr)
+        tr = self._json_object(sample, "transition")
+        if tr is not None:
+            with self._lock:
+                self.transitions.append(tr)
 
     def _on_trajectory(self, sample) -> None:
         try:
@@ -145,21 +145,14 @@ class CellWatch:
             self.trajectory_count += 1
 
     def _on_bodies(self, sample) -> None:
-        try:
-            bodies = json.loads(sample.payload.to_bytes())
-            if not isinstance(bodies, dict):
-                raise ValueError("not a JSON object")
-        except ValueError as err:
-            return self._bad("sim bodies", err)
-        with self._lock:
-            self.bodies = bodies
+        bodies = self._json_object(sample, "sim bodies")
+        if bodies is not None:
+            with self._lock:
+                self.bodies = bodies
 
     def _on_truth(self, sample) -> None:
-        try:
-            ev = json.loads(sample.payload.to_bytes())
-        except ValueError as err:
-            return self._bad("sim truth", err)
-        if not isinstance(ev, dict):
+        ev = self._json_object(sample, "sim truth")
+        if ev is None:
             return
         with self._lock:
             if ev.get("kind") == "contact":
