@@ -282,8 +282,18 @@ class Reaction(str, Enum):
     """What the controller does when the path is blocked while the arm moves."""
 
     REPLAN = "replan"
+    REPLAN_REFLEX = "replan_reflex"
+    REFLEX = "reflex"
     STOP_AND_WAIT = "stop_and_wait"
     NONE = "none"
+
+    @property
+    def swerves(self) -> bool:
+        return self in (Reaction.REFLEX, Reaction.REPLAN_REFLEX)
+
+    @property
+    def replans(self) -> bool:
+        return self in (Reaction.REPLAN, Reaction.REPLAN_REFLEX)
 
 
 class AfterBrake(str, Enum):
@@ -326,11 +336,55 @@ class SpeedSeparationConfig(Section):
     )
 
 
+class ReflexConfig(Section):
+    """The reflex (docs/reflex.md): a swerve off the path, away from what the map holds near the arm, spliced onto the
+    motion jerk-limited and checked like any path, back onto the path after `ramp` + `hold` + `ramp` of arc."""
+
+    method: Literal["forces", "kernels"] = Field(
+        "forces", description="forces: seed 000's virtual forces on a vertex model; kernels: seed 001's kernels."
+    )
+    task: Literal["path", "position"] = Field(
+        "path",
+        description="The swerve lies in the nullspace of this task: path (never along the path: progress is the "
+        "time law's) or position (the hand's position held, the papers' redundant-arm setting).",
+    )
+    vertices: int = Field(800, ge=50, le=20000, description="forces: vertices of the arm's model.")
+    r_max: float = Field(0.3, gt=0.0, le=1.0, description="forces: only voxels this close to a vertex push it [m].")
+    f_max: float = Field(1.0, gt=0.0, description="forces: push of a voxel touching a vertex [N].")
+    mass: float = Field(1.0, gt=0.0, description="forces: the admittance's virtual inertia per joint [kg m^2].")
+    damping: float = Field(
+        200.0, gt=0.0, description="forces: the admittance's damping per joint [N m s/rad]: q' = tau / damping settled."
+    )
+    horizon: float = Field(0.4, gt=0.0, le=2.0, description="The swerve's offset: the admittance run this long [s].")
+    kernel_length: int = Field(30, ge=2, le=200, description="kernels: samples along each axis (even).")
+    kernel_width: int = Field(7, ge=1, le=51, description="kernels: samples across (odd).")
+    kernel_decay: Literal["linear", "gaussian"] = Field("gaussian", description="kernels: fall-off.")
+    kernel_gain: float = Field(0.05, gt=0.0, description="kernels: [m/s] per unit of kernel sum.")
+    max_offset: float = Field(0.3, gt=0.0, le=1.5, description="The swerve's largest joint offset [rad].")
+    min_offset: float = Field(0.02, ge=0.0, le=0.5, description="A smaller offset is no swerve [rad].")
+    ramp: float = Field(0.25, gt=0.0, le=2.0, description="Arc along the path to the full offset, and back [rad].")
+    hold: float = Field(0.3, ge=0.0, le=3.0, description="Arc along the path at the full offset [rad].")
+    interval: float = Field(0.3, gt=0.0, le=5.0, description="At most one swerve per this long [s].")
+    tries: int = Field(3, ge=1, le=8, description="Offsets tried per swerve: halved after each that collides.")
+
+    @model_validator(mode="after")
+    def _kernel_shape(self):
+        if self.kernel_length % 2 or self.kernel_width % 2 == 0:
+            raise ValueError(
+                f"kernel_length must be even and kernel_width odd (the point lies between the two middle samples "
+                f"along, on the middle one across); got {self.kernel_length} and {self.kernel_width}"
+            )
+        if self.min_offset >= self.max_offset:
+            raise ValueError(f"min_offset ({self.min_offset}) must be less than max_offset ({self.max_offset})")
+        return self
+
+
 class ControllerConfig(Section):
     reaction: Reaction = Field(
         Reaction.REPLAN,
-        description="Path blocked while moving: replan on the move (paper 002); brake, wait and plan from rest "
-        "(MoveIt-style baseline); or ignore the map once moving (no monitoring; for comparison only).",
+        description="Path blocked while moving: replan on the move (paper 002); the same with a reflex that swerves "
+        "off the path at once (replan_reflex); the reflex alone, back onto the same path (reflex); brake, wait and "
+        "plan from rest (MoveIt-style baseline); or ignore the map once moving (no monitoring; for comparison only).",
     )
     policy: AfterBrake = Field(
         AfterBrake.WAIT_AND_RESUME, description="After a safety brake: hold and resume when clear, or fail the goal."
@@ -390,6 +444,7 @@ class ControllerConfig(Section):
         "(CPython's default is 0.005; set for the whole process when a controller is built).",
     )
     speed_separation: SpeedSeparationConfig = Field(default_factory=SpeedSeparationConfig)
+    reflex: ReflexConfig = Field(default_factory=ReflexConfig)
 
 
 class TransportConfig(Section):

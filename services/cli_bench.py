@@ -251,6 +251,12 @@ def bench_reflex(
             f"{r['paper_gpu_ms']:g} / {r['paper_cpu_ms']:g}",
         )
     Console().print(t)
+    sw = result["swerve"]
+    Console().print(
+        "the reflex in the loop, ms per swerve direction (median / p95): "
+        + ", ".join(f"{m} {sw[m]['ms']['median']:.1f} / {sw[m]['ms']['p95']:.1f}" for m in ("forces", "kernels"))
+        + f" ({sw['voxels']:,} voxels, {sw['vertices']} vertices; control period {sw['control_period_ms']:.1f} ms)"
+    )
     k, (w, wo) = result["seed_001_kernels"], result["seed_001_wall"]
     u = k["update_ms"]
     Console().print(

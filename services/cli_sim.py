@@ -174,7 +174,7 @@ def soak(
     config: ConfigOpt = "demo",
     minutes: float = typer.Option(60.0, min=0.5, help="How long to loop the pick-and-place [min]."),
     seed: int = typer.Option(7, min=0, help="Seeds the operator's script."),
-    policy: str = typer.Option("replan", help="replan, stop-and-wait or none."),
+    policy: str = typer.Option("replan", help="replan+reflex, replan, reflex, stop-and-wait or none."),
     every: float = typer.Option(60.0, min=5.0, help="Sample every this many seconds."),
     json_path: str | None = typer.Option(None, "--json", help="Write the samples and totals to this JSON file."),
     plot: str | None = typer.Option(None, "--plot", help="Draw memory and reaction latency over time to a PNG."),
@@ -214,7 +214,9 @@ def demo(
     duration: float | None = typer.Option(None, min=5.0, help="Stop after this long [s] (default: the cycles)."),
     seed: int = typer.Option(7, min=0, help="Seeds the operator's script and the camera noise."),
     policy: str = typer.Option(
-        "replan", help="replan (this service), stop-and-wait (MoveIt-style: stop, wait, plan from rest) or none."
+        "replan",
+        help="replan (this service), replan+reflex (swerving at once while it replans), reflex (swerve and return, "
+        "no replanning), stop-and-wait (MoveIt-style: stop, wait, plan from rest) or none.",
     ),
     json_path: str | None = typer.Option(None, "--json", help="Write the metrics to this JSON file."),
     plot: str | None = typer.Option(None, "--plot", help="Draw the timeline (state, clearance, events) to a PNG."),

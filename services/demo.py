@@ -21,7 +21,13 @@ from replanner.transport.session import free_port, node_session
 
 from .procs import Proc, replanner_cmd
 
-POLICIES = {"replan": "replan", "stop-and-wait": "stop_and_wait", "none": "none"}
+POLICIES = {
+    "replan+reflex": "replan_reflex",
+    "replan": "replan",
+    "reflex": "reflex",
+    "stop-and-wait": "stop_and_wait",
+    "none": "none",
+}
 
 
 def _view_url(viewer: Proc, timeout: float = 60.0) -> str:
@@ -227,6 +233,7 @@ def table(metrics: dict) -> Table:
             "{started} / {spliced} / {cancelled} / {failed}".format(**metrics["replans"]),
         ),
         ("brakes", str(metrics["brakes"])),
+        ("swerves (reflex)", str(metrics["swerves"])),
         ("cycles failed (and carried on)", str(metrics["cycles_failed"])),
         ("reaction, median / p95", lat("reaction_s")),
         ("service T_r (speed and separation), median / p95", lat("service_reaction_time_s")),

@@ -79,7 +79,8 @@ def test_bad_config_names_file_and_field(tmp_path):
 
 def test_demo_bad_flags_say_what_to_change():
     out = replanner("demo", "--policy", "yolo")
-    assert out.returncode == 2 and "--policy must be one of replan, stop-and-wait, none" in out.stderr
+    allowed = "replan+reflex, replan, reflex, stop-and-wait, none"
+    assert out.returncode == 2 and f"--policy must be one of {allowed}" in out.stderr
     out = replanner("demo", "--config", "panda", "--cycles", "1")  # the panda profile has no bins
     assert out.returncode == 2 and "sim.task.bins names 'bin_a', which is not in scene:" in out.stderr
 

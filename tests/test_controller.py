@@ -1,5 +1,6 @@
-"""Every edge of the controller's state machine, on a kinematic robot with clouds through perception, all on a
-simulated clock the test advances (SteppedSim): no test races the wall clock; the same run on any machine."""
+"""Every edge of the controller's state machine, and its reflex swerves, on a kinematic robot with clouds through
+perception, all on a simulated clock the test advances (SteppedSim): no test races the wall clock; the same run on
+any machine."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from replanner.errors import InvalidInputError, UnknownNameError
 from replanner.planning import PoseGoal
 from replanner.sim.stepped import SteppedSim
 from replanner.trajectory import progress_along
-from replanner.world.geometry import Box
+from replanner.world.geometry import Box, Sphere
 from replanner.world.transforms import make_transform
 from tests.conftest import CONFIGS
 from tests.helpers import ARM_FORWARD, ARM_UP, sleeve
@@ -183,6 +184,8 @@ def test_block_then_path_clears_cancels_the_replan(make_sim):
     why = [(t.dest, t.reason) for t in sim.controller.transitions]
     assert edges(sim)[-1] == ("MONITORING_WITH_PLANNING_PENDING", "MONITORING", "path_clear"), why
     assert any(e[1] == "replan_canceled" for e in sim.controller.events_log)
+    sim.run_for(0.1)  # slowed while the replan was pending: back to its planned speed once clear
+    assert sim.controller.moves.speed_factor() == pytest.approx(1.0), sim.controller.events_log[-4:]
     assert result(sim, h, 20).status == GoalStatus.SUCCEEDED
 
 
@@ -388,3 +391,109 @@ def test_a_goal_with_its_own_padding_plans_and_runs_close_to_a_known_object(make
                                    ("MONITORING", "WAITING", "succeeded")]  # fmt: skip
     with pytest.raises(InvalidInputError, match=r"padding must be a number of metres in \[0, 0.2\]"):
         Goal.joints("bad", B, padding=-0.01)
+
+
+# ---------------------------------------------------------------- the reflex in the loop (issue 16): swerves
+def _box_over_the_path(sim):
+    """From A towards B; 0.6 s on, a box appears over the hand's path at 55 % of the way (the forearm would clip
+    it; lower, the arm passes). Returns (the goal's handle, when it was sent, when the arm began to move)."""
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    t_go = sim.t
+    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
+    wait_state(sim, State.MONITORING)
+    t_start = sim.t
+    sim.run_for(0.6)
+    over = make_transform(hand_at(sim, A + 0.55 * (B - A)) + [0.0, 0.0, 0.12])
+    sim.add_obstacle("intruder", Box(size=(0.14, 0.14, 0.14)), over)
+    return h, t_go, t_start
+
+
+def _events(sim, what: str) -> list[dict]:
+    return [e[2] for e in sim.controller.events_log if e[1] == what]
+
+
+def _no_contacts(sim, t_start: float, ignore=frozenset()) -> None:
+    """Every 5 ms of what the robot ran since t_start: no penetration of anything in pybullet (table, intruder)."""
+    for t in np.arange(t_start, sim.t, 0.005):
+        hits = sim.scene.contacts(sim.timeline.state(t)[0], ignore, depth=1e-4)
+        assert not hits, f"contact at {t:.3f} s: {hits}"
+
+
+def _offsets_from(sim, t_start: float) -> float:
+    """The farthest [rad] the executed motion left the goal's first straight path A -> B."""
+    t = np.arange(t_start, sim.t, 0.01)
+    Q = np.array([sim.timeline.state(x)[0] for x in t])
+    d = B - A
+    along = (Q - A) @ d / (d @ d)
+    return float(np.linalg.norm(Q - (A + along[:, None] * d), axis=1).max())
+
+
+def test_replan_reflex_swerves_at_once_and_replans_from_the_swerve(make_sim):
+    sim = make_sim(reaction="replan_reflex", reflex={"r_max": 0.5})
+    h, _, t_start = _box_over_the_path(sim)
+    res = result(sim, h, 20)
+    assert res.status == GoalStatus.SUCCEEDED, (res, edges(sim))
+    log = [(ev[0], ev[1], ev[2]) for ev in sim.controller.events_log]
+    swerves = [e for e in log if e[1] == "swerve"]
+    assert swerves and all(0.02 <= e[2]["offset"] <= 0.3 + 1e-9 for e in swerves), swerves
+    # at the moment the path was found blocked: the swerve first, then the replan, planned from the swerved motion
+    blocked = next(i for i, e in enumerate(log) if e[1] == "blocked")
+    after = [e[1] for e in log[blocked:] if e[0] == log[blocked][0]]
+    assert after.index("swerve") < after.index("plan_requested"), after
+    # the swerve alone cleared the path: the replan was called off, the arm went on round the box without a stop
+    e = edges(sim)
+    assert ("MONITORING_WITH_PLANNING_PENDING", "MONITORING", "path_clear") in e, e
+    assert "replan_canceled" in [x[1] for x in log[blocked:]]
+    assert not any(t[1] == "HOLDING" for t in e)
+    _check_executed_motion(sim, t_start)
+    _no_contacts(sim, t_start)
+    assert _offsets_from(sim, t_start) > 0.1  # round the box, off the straight path
+    assert sim.controller.status()["swerves"] == len(swerves)
+
+
+def test_reflex_alone_swerves_and_comes_back_to_its_path_without_planning(make_sim):
+    sim = make_sim(reaction="reflex", reflex={"r_max": 0.5}, pending_timeout=5.0)
+    h, t_go, t_start = _box_over_the_path(sim)
+    res = result(sim, h, 30)
+    swerves = _events(sim, "swerve")
+    assert swerves, edges(sim)
+    # no replanning at all: the goal's one plan, nothing else
+    asked = [ev[2]["purpose"] for ev in sim.controller.events_log if ev[1] == "plan_requested" and ev[0] >= t_go]
+    assert asked == ["goal"], asked
+    assert res.status == GoalStatus.SUCCEEDED, (res, edges(sim))
+    assert np.abs(sim.state().position - B).max() <= sim.controller.cfg.goal_tolerance  # back on its path's end
+    assert _offsets_from(sim, t_start) > 0.02  # it did leave the straight path
+    _check_executed_motion(sim, t_start)
+    _no_contacts(sim, t_start)
+
+
+def test_a_swerve_never_goes_into_a_known_object(make_sim):
+    """The detour of each size is checked before it is sent: the full swerve would put the hand into a known lamp,
+    so the half-size one goes; with lamps on every size's way, nothing is sent."""
+    sim = make_sim(reaction="reflex")
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
+    wait_state(sim, State.MONITORING)
+    sim.run_for(0.5)
+    moves, reflex = sim.controller.moves, sim.controller.swerve.reflex
+    dq = np.array([0.0, 0.0, 0.0, -0.3, 0.0, 0.0, 0.0])  # the elbow bends: the hand draws in off its path
+    start, traj = moves.timeline.active(sim.t)
+    t = sim.t - start + sim.controller.cfg.brake_latency  # where a swerve decided now starts (Moves' latency)
+    sizes = [w for w, _ in reflex.detours(traj, t, dq)][::3]  # one per size (each size comes with 3 hold lengths)
+    assert len(sizes) == 3
+    full, half = hand_at(sim, sizes[0][1]), hand_at(sim, sizes[1][1])
+    sim.world.add("lamp0", Sphere(radius=0.03), make_transform(full + 0.5 * (full - half)))  # beyond the full swerve
+    assert [sim.checker.path_valid(w[:4]) for w in sizes] == [False, True, True]
+    n = len(moves.timeline.segments())
+    assert moves.swerve(lambda tr, t: reflex.detours(tr, t, dq))
+    sent_at, sent = moves.timeline.segments()[-1]
+    assert len(moves.timeline.segments()) == n + 1 and sent_at == start + t
+    Q = sent.evaluate(np.linspace(0.0, sent.duration, 500), order=0)[0]
+    assert sim.checker.is_valid_batch(Q).all()  # nowhere into the lamp
+    assert np.abs(Q - traj.evaluate(np.linspace(t, traj.duration, 500), order=0)[0]).max() > 0.1  # it swerved
+    # every size blocked: no swerve at all, the motion as it was
+    for i, w in enumerate(sizes, 1):
+        sim.world.add(f"lamp{i}", Sphere(radius=0.03), make_transform(hand_at(sim, w[1])))
+    before = moves.timeline.segments()
+    assert not moves.swerve(lambda tr, t: reflex.detours(tr, t, dq))
+    assert moves.timeline.segments() == before

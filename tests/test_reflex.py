@@ -71,3 +71,60 @@ def test_seed_001_experiment_keeps_joint_4_further_from_the_wall_and_reaches_the
     assert with_["goal_error_m"] < 0.005 and without["goal_error_m"] < 0.005  # the task is reached either way
     assert with_["joint4_final_distance_m"] > without["joint4_final_distance_m"] + 0.05
     assert with_["joint4_closest_m"] > without["joint4_closest_m"]
+
+
+def _box_voxels(centre, half=0.05, res=0.01) -> np.ndarray:
+    g = np.arange(-half, half + 1e-9, res)
+    return np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) + centre
+
+
+def test_the_swerve_is_seed_000s_torque_through_the_admittance_in_the_nullspace(panda):
+    """Reflex.pushes (all configurations in one compiled call) against the all-pairs forces, the link Jacobians
+    and the admittance's closed form, one configuration at a time."""
+    from replanner.reflex import Reflex
+    from replanner.sections import ReflexConfig
+
+    cfg = ReflexConfig(vertices=300, r_max=0.3, mass=2.0, damping=150.0, horizon=0.3)
+    r = Reflex(panda, cfg)
+    rng = np.random.default_rng(4)
+    Q = panda.home + rng.uniform(-0.4, 0.4, (3, panda.dof))
+    tangents = rng.normal(size=(3, panda.dof))
+    voxels = _box_voxels(panda.link_pose(Q[0], "panda_link5")[:3, 3] + [0.12, 0.05, 0.0])
+    got = r.pushes(Q, tangents, voxels, 0.01)
+    for q, tangent, g in zip(Q, tangents, got):
+        P = r.model.place(panda, q)
+        origins = np.array([panda.link_pose(q, link)[:3, 3] for link in r.model.links])
+        W = brute_force(P, r.model.link, origins, voxels, cfg.r_max, cfg.f_max)
+        tau = sum(panda.jacobian(q, link).T @ w for link, w in zip(r.model.links, W))
+        T, M, D = cfg.horizon, cfg.mass, cfg.damping
+        dq = tau / D * (T - M / D * (1 - np.exp(-D * T / M)))
+        t = tangent / np.linalg.norm(tangent)
+        want = dq - t * (t @ dq)  # nothing along the path: progress is the time law's
+        np.testing.assert_allclose(g, want, rtol=1e-6, atol=1e-12)
+        assert abs(g @ t) < 1e-9
+    assert np.abs(got[0]).max() > 1e-3  # a case with a push in it
+
+
+def test_a_swerve_moves_the_arm_away_from_what_is_near_it(panda):
+    """The capped offset at q leaves the arm farther from a box over the elbow (both methods along the path, the
+    forces with the hand held too); with the hand's position as the task the hand stays (to first order)."""
+    from replanner.reflex import Reflex
+    from replanner.sections import ReflexConfig
+
+    q = np.array([0.0, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
+    box = _box_voxels(panda.link_pose(q, "panda_link4")[:3, 3] + [0.0, 0.0, 0.14])
+    tangent = np.eye(panda.dof)[0]
+    hand = panda.link_pose(q, "panda_hand")[:3, 3]
+    for method in ("forces", "kernels"):
+        for task in ("path", "position"):
+            r = Reflex(panda, ReflexConfig(method=method, task=task, max_offset=0.1))
+            dq = r.offset(q, tangent, box, 0.01)
+            assert dq is not None and np.abs(dq).max() <= 0.1 + 1e-12, (method, task)
+            before, after = (VertexModel.place(r.model, panda, x) for x in (q, q + dq))
+            gap = [np.linalg.norm(v[:, None] - box[None], axis=2).min() for v in (before, after)]
+            if (method, task) != ("kernels", "position"):  # seed 001's N J+ can turn a push around (docs/reflex.md)
+                assert gap[1] > gap[0] + 0.005, (method, task, gap)
+            if task == "position":
+                assert np.linalg.norm(panda.link_pose(q + dq, "panda_hand")[:3, 3] - hand) < 0.02
+    far = box + [0.0, 0.0, 1.0]  # nothing within reach: no swerve
+    assert Reflex(panda, ReflexConfig()).offset(q, tangent, far, 0.01) is None

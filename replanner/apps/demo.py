@@ -60,6 +60,8 @@ class Recorder:
                 item["rejections"] = sum(msg["rejections"].values())
             if isinstance(msg.get("latency"), dict):
                 item["latency"] = msg["latency"]
+            if isinstance(msg.get("swerves"), int):
+                item["swerves"] = msg["swerves"]
         except (ValueError, KeyError, TypeError):
             return
         with self._lock:
@@ -147,6 +149,8 @@ def compute_metrics(rec: Recording, *, safety_distance: float, bins: tuple[str, 
             "failed": count("brake_and_hold", pending) + count("brake_and_abort", pending),
         },
         "brakes": count("brake_and_hold") + count("brake_and_abort"),
+        # the service counts its swerves from its start: the run's are the last count less the first
+        "swerves": (swerves[-1] - swerves[0]) if (swerves := [s["swerves"] for s in status if "swerves" in s]) else 0,
         "goals_failed": sum(1 for r in rec.results if r.get("status") != "succeeded"),
         "reaction_s": _stats(reactions),
         "reaction_p99_s": round(float(np.percentile(reactions, 99)), 3) if reactions else None,

@@ -13,7 +13,7 @@ import trimesh
 from ..config import ReplannerConfig
 from ..perception import CameraModel
 from ..perception.camera import look_at
-from ..reflex import ForceField, VertexModel, VoxelMapBuilder
+from ..reflex import ForceField, Reflex, VertexModel, VoxelMapBuilder
 from ..reflex.kernels import AvoidanceKernels, KernelSpec, NullspaceReflex, OccupancyGrid, attractive_velocity
 from ..stats import summary
 from ..world.geometry import Box, Cylinder
@@ -97,6 +97,7 @@ def run(cfg: ReplannerConfig, *, seed: int = 0, n: int = 30, r_max: float = 0.3,
     wall = [reach_past_wall(cfg, avoid) for avoid in (True, False)]
     return {
         "bench": "reflex",
+        "swerve": swerve_timing(cfg, cloud, q, seed=seed),
         "seed_001_kernels": kernel,
         "seed_001_wall": wall,
         "robot": robot.name,
@@ -108,6 +109,40 @@ def run(cfg: ReplannerConfig, *, seed: int = 0, n: int = 30, r_max: float = 0.3,
         "exact": "every vertex-voxel pair within r_max, float64 (tests/test_reflex.py: equal to all pairs)",
         "rows": rows,
         "bar_force_ms_median": 14.0,
+    }
+
+
+def swerve_timing(cfg: ReplannerConfig, cloud: np.ndarray, q, *, seed: int = 0, n: int = 50) -> dict:
+    """The reflex in the loop: ms per swerve direction (`Reflex.offset_ahead`: 6 points of the path ahead, one
+    compiled force call or one kernel grid) for the controller's `reflex` config, both methods, the person frame's
+    voxels at the map's resolution, against the control period (1 / check_rate_hz)."""
+    from ..trajectory import TrajectoryGenerator
+
+    robot = RobotModel.from_config(cfg.robot)
+    res = cfg.perception.resolution if cfg.perception is not None else 0.01
+    voxels = VoxelMapBuilder(res, BOUNDS_LO, EXTENT).build(cloud)
+    q = np.asarray(q, dtype=float)
+    toward = q + np.r_[0.6, np.zeros(robot.dof - 1)]  # a path past the person
+    traj = TrajectoryGenerator(robot).time(np.stack([q, toward]))
+    out = {}
+    for method in ("forces", "kernels"):
+        reflex = Reflex(robot, cfg.controller.reflex.model_copy(update={"method": method}), seed)
+        ms, offsets = [], []
+        for i in range(n + 1):
+            t = (i % 10) / 10 * traj.duration * 0.5
+            t0 = time.perf_counter()
+            dq = reflex.offset_ahead(traj, t, voxels, res)
+            if i:
+                ms.append((time.perf_counter() - t0) * 1e3)
+                offsets.append(0.0 if dq is None else float(np.abs(dq).max()))
+        out[method] = {"ms": summary(ms), "largest_offset_rad": max(offsets)}
+    return {
+        "voxels": len(voxels),
+        "voxel_mm": res * 1e3,
+        "vertices": cfg.controller.reflex.vertices,
+        "r_max_m": cfg.controller.reflex.r_max,
+        "control_period_ms": 1e3 / cfg.controller.check_rate_hz,
+        **out,
     }
 
 

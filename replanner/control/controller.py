@@ -29,16 +29,18 @@ from ..world.collision import CollisionChecker
 from ..world.robot import RobotModel
 from .goals import Goal, GoalHandle, GoalResult, GoalStatus
 from .history import History, TransitionRecord
+from .holding import Holding
 from .inbox import Inbox, Input
 from .latency import LatencyAccount
 from .liveness import Liveness
 from .moves import Moves
 from .states import State, edges
+from .swerves import Swerves
 
 log = logging.getLogger(__name__)
 
 
-class Controller:
+class Controller(Holding):
     """Reactive execution of goals for one robot.
 
     Args:
@@ -75,6 +77,7 @@ class Controller:
             log.warning("no cameras configured: the controller sees static objects only")
         checker.is_valid(robot.home)  # build lazily made geometry now: the first check must not stall the thread
         self.moves = Moves(robot.home, generator, execute, clock, cfg.brake_latency, self.log_event, cfg.start_lead)
+        self.swerve = Swerves(robot, cfg.reflex, checker, self.moves, self.log_event) if cfg.reaction.swerves else None
         self.machine = Machine(
             model=self,
             states=[s.value for s in State],
@@ -337,15 +340,6 @@ class Controller:
             self._retreat(str(err))
         # a failed hold replan: keep holding, the next attempt comes after hold_replan_interval
 
-    def _retreat(self, why: str) -> None:
-        """Stopped where no plan can start: back off along its own curve (see Moves.escape), never stuck."""
-        arc = self.moves.escape()
-        if arc is None:
-            self.log_event("stuck", why=why)
-        else:
-            self.log_event("retreat", arc=arc, why=why)
-            self._resumable = False  # off its path now: only a new plan takes it on
-
     # ------------------------------------------------------------------ stopping
     def _safety_brake(self, reason: str) -> None:
         self._cancel_job()
@@ -402,13 +396,22 @@ class Controller:
             elif blocking is not None:
                 self._pending_since, self._clear_count, self._retry_at = now, 0, None
                 self.log_event("blocked", check=blocking.check)
+                self._reflex(now, "blocked", launch=False, urgent=True)  # first: the replan starts from the swerve
                 self._set_speed(min(speed.speed_factor, self.cfg.pending_speed_factor))
-                self._launch(JobPurpose.REPLAN, self.cfg.replan_deadline)
+                if self.cfg.reaction.replans:
+                    self._launch(JobPurpose.REPLAN, self.cfg.replan_deadline)
                 self.blocked(reason=blocking.reason)
             else:
+                if speed.speed_factor < 1.0:  # speed and separation would slow the arm: move away as well
+                    self._reflex(now, "close", launch=False)
                 self._set_speed(speed.speed_factor)
         elif state == State.PENDING.value:
             self._check_pending(now, view, speed.speed_factor)
+
+    def _reflex(self, now: float, why: str, launch: bool, urgent: bool = False) -> None:
+        """Swerve if the reaction has a reflex; `launch`: a replan in flight was for the motion before the swerve."""
+        if self.swerve is not None and self.swerve(now, why, urgent) and launch and self._job is not None:
+            self._launch(JobPurpose.REPLAN, self.cfg.replan_deadline)
 
     def _set_speed(self, factor: float) -> None:
         if (was := self.moves.retime(factor)) is not None:
@@ -427,6 +430,8 @@ class Controller:
                 self._retry_at = None
                 self._launch(JobPurpose.REPLAN, self.cfg.replan_deadline)
             self._clear_count = self._clear_count + 1 if clear else 0
+            if not clear or speed_factor < 1.0:
+                self._reflex(now, "blocked" if not clear else "close", launch=True)
             if self._clear_count >= self.cfg.clear_checks:
                 self._cancel_job()
                 self.log_event("replan_canceled")
@@ -434,33 +439,6 @@ class Controller:
                 self.path_clear(reason=f"the path was clear for {self._clear_count} checks")
             else:
                 self._set_speed(min(speed_factor, self.cfg.pending_speed_factor))
-
-    def _check_holding(self, now: float, view) -> None:
-        moving, clear = self.moves.timeline.moving(now), self.monitor.check_path(view).clear
-        self._clear_since = now if clear and self._clear_count == 0 else self._clear_since
-        self._clear_count = self._clear_count + 1 if clear else 0
-        room = moving or self.monitor.check_speed(view, 0.1).blocking is None  # may it move (people near)? at rest
-        # clear for some checks and in a new frame of every camera (cameras may disagree on a voxel, frame by frame)
-        seen = self._clear_count >= self.cfg.clear_checks and self.liveness.seen_all_since(self._clear_since)
-        if self._resumable and seen and not moving and room:
-            # everything that can block, nothing remembered, people's distance fresh: no resume into a blocked path
-            final = self.monitor.check_path(view, fresh=True).blocking
-            speed = self.monitor.check_speed(view)  # and not one the next check holds again (a hold-resume flap)
-            if final is None and not speed.blocking and speed.speed_factor >= self.cfg.speed_separation.min_speed_share:
-                self.moves.resume()
-                self.resume(reason=f"the path was clear for {self._clear_count} checks")
-                return
-            self._clear_count = 0
-        if now - self._hold_since > self.cfg.hold_timeout:
-            self._finish(GoalStatus.FAILED, f"the path stayed blocked for {self.cfg.hold_timeout} s")
-            self.give_up(reason=f"blocked for {self.cfg.hold_timeout} s")
-        elif room and not (moving or clear) and self._job is None and now - self._hold_planned > self._hold_wait():
-            self._hold_planned = now
-            self._launch(JobPurpose.HOLD, self._deadline())
-
-    def _hold_wait(self) -> float:  # replan goes round as soon as the arm stands; stop-and-wait waits first
-        first = self._hold_planned == self._hold_since and self.cfg.reaction == Reaction.REPLAN
-        return 0.0 if first else self.cfg.hold_replan_interval
 
     def _reached(self, now: float) -> bool:
         if self.moves.timeline.busy(now):
@@ -495,6 +473,7 @@ class Controller:
             "checks": self.monitor.stats.checks,
             "clearance": self.last_clearance,
             "speed_factor": self.moves.speed_factor(),
+            "swerves": self.swerve.count if self.swerve is not None else 0,
             "not_ready": self.liveness.silent(now, ready=True),  # why a goal sent now would be refused
             "latency": self.latency.report(now),
         }

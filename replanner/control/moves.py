@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
@@ -89,7 +89,7 @@ class Moves:
     def _running(self) -> tuple[float, Trajectory, float] | None:
         """(start, trajectory, time into it when a change decided now starts), or None at rest."""
         now = self.clock()
-        seg = self.timeline.active(now)
+        seg = self.timeline.active(now + self.latency)  # a motion sent to start by then (a swerve) is the one to change
         if seg is None or now - seg[0] >= seg[1].duration:
             return None
         start, traj = seg
@@ -113,9 +113,9 @@ class Moves:
         return stop
 
     def slow_down(self, factor: float) -> None:
-        """Go on along the same curve at `factor` of the nominal speed (while a new path is planned)."""
+        """Go on along the same curve at `factor` <= 1 of the nominal speed (1: back to it)."""
         run = self._running()
-        if factor >= 1.0 or run is None:
+        if factor > 1.0 or run is None:
             return
         start, traj, t = run
         try:
@@ -131,8 +131,34 @@ class Moves:
         current = self.speed_factor()
         if current is None or not (factor < current - 0.02 or (current < 0.999 and factor > 1.2 * current + 0.02)):
             return None
+        if factor > current and self.timeline.later(self.clock()):
+            return None  # a splice on its way brings its own speed: a retime now would call it off
         self.slow_down(min(factor, 1.0))
         return current
+
+    def swerve(self, detours: Callable[[Trajectory, float], Iterable[tuple[np.ndarray, np.ndarray]]]) -> bool:
+        """Splice the first of `detours(trajectory, t)` whose own segments are collision-free onto the running
+        motion at t (when a change decided now starts), at the limits it runs at; False when none fits (nothing
+        sent). Each detour is (path from the state at t, its own segments)."""
+        run, checker = self._running(), self.gen.checker
+        if run is None or checker is None or not isinstance(run[1], Trajectory) or self.timeline.later(self.clock()):
+            return False  # at rest, or a splice is on its way (a swerve now would call it off)
+        start, traj, t = run
+        lim = self.gen.robot.limits
+        vs = min(float(np.min(traj.limits.velocity / lim.velocity)), 1.0)
+        acc = min(float(np.min(traj.limits.acceleration / lim.acceleration)), 1.0)
+        for path, own in detours(traj, t):
+            if not checker.path_valid(own):
+                continue
+            try:
+                # onto the detour before its first shifted point: a later merge would cut the swerve out
+                new = self.gen.splice(traj, t, path, vs, acc, merge_within=float(np.linalg.norm(path[1] - path[0])))
+            except TrajectoryError:
+                continue
+            new.nominal = traj.nominal  # a slowed motion stays slowed: the next speed-up goes back to the goal's limits
+            self.send(new, start + t)
+            return True
+        return False
 
     def escape(self) -> float | None:
         """From rest where no plan can start: move a little along its own curve, back the way it came or on, to the

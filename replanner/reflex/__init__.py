@@ -1,5 +1,6 @@
-"""The reflex room (issue 16): seed 000's virtual forces from a voxel map on a vertex model of the robot."""
+"""The reflex room (issue 16): seed 000's virtual forces and seed 001's kernels, and the swerve that uses them."""
 
 from .forces import ForceField, VertexModel, VoxelMapBuilder, brute_force
+from .swerve import Reflex
 
-__all__ = ["ForceField", "VertexModel", "VoxelMapBuilder", "brute_force"]
+__all__ = ["ForceField", "Reflex", "VertexModel", "VoxelMapBuilder", "brute_force"]

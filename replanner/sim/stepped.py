@@ -47,7 +47,7 @@ class SteppedSim:
     ):
         robot = robot or RobotModel.from_config(cfg.robot)
         self.t, self.dt = 0.0, float(dt)
-        self.timeline = Timeline(robot.home)  # what the robot follows
+        self.timeline = Timeline(robot.home, keep=100_000)  # what the robot follows, its whole history for tests
         self.stack = build_stack(
             cfg, robot=robot, static=static, seed=seed, execute=self.timeline.add, plan_in="inline", clock=self.clock
         )

@@ -314,6 +314,7 @@ class TrajectoryGenerator:
         velocity_scale: float = 1.0,
         acceleration_scale: float = 1.0,
         report: TimingReport | None = None,
+        merge_within: float | None = None,
     ) -> Trajectory:
         """Continue `traj` from its state at time t0 onto new_path (whose first waypoint is that state's position).
 
@@ -322,7 +323,8 @@ class TrajectoryGenerator:
         into the new path. Progress along the new path never decreases. The candidates (lead-in x merge point)
         are tried in a fixed order, cheap tests first, at most len(SPLICE_LEADS) x len(SPLICE_MERGES) of them: the
         result depends on the inputs alone, never on the machine's speed. Raises TrajectoryError if none fits
-        (e.g. the new path turns back against the motion): brake and plan from rest instead.
+        (e.g. the new path turns back against the motion): brake and plan from rest instead. `merge_within` [rad
+        of arc along new_path]: merge no farther (a swerve must not skip its own detour).
         """
         s0, v0, a0, _ = (float(x[0]) for x in traj.law.eval(np.array([t0])))
         q0 = traj.curve.eval(np.array([s0]))[0]
@@ -345,7 +347,8 @@ class TrajectoryGenerator:
         last_err = "no transition fits"
         shape_basis = basis(np.linspace(0.0, 1.0, 12 * SPLICE_PARTS), 0)
         # the merge points do not depend on the lead-in
-        merges = [point_along(W, min(length, 0.9 * total)) for length in SPLICE_MERGES]
+        reach = 0.9 * total if merge_within is None else min(0.9 * total, merge_within)
+        merges = [point_along(W, min(length, reach)) for length in SPLICE_MERGES]
         B = np.array([b for b, _ in merges])
         ks = [k for _, k in merges]
         seg = W[np.array(ks) + 1] - W[np.array(ks)]

@@ -1,0 +1,58 @@
+"""The controller's reflex: when to swerve and what it sends (the how is `replanner.reflex`)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from ..reflex import Reflex
+from ..sections import ReflexConfig
+from ..world.collision import CollisionChecker
+from ..world.robot import RobotModel
+from .moves import Moves
+
+
+class Swerves:
+    """Swerves off the running motion, away from the map's voxels near the arm, at most one per `interval`.
+
+    Called by the controller only where its checks let the arm move on: a swerve never stands in for a brake.
+    """
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        cfg: ReflexConfig,
+        checker: CollisionChecker,
+        moves: Moves,
+        log_event: Callable[..., None],
+    ):
+        self.reflex, self.cfg, self.checker, self.moves = Reflex(robot, cfg), cfg, checker, moves
+        self.log_event = log_event
+        self.count, self.last, self.tried = 0, -math.inf, -math.inf  # swerves sent, the last, the last look
+
+    def __call__(self, now: float, why: str, urgent: bool = False) -> bool:
+        """Swerve now if something in the map is near and a detour is free; True if one was sent. A look that found
+        none waits `interval` / 3 before the next (`urgent`: the path was just found blocked, look now)."""
+        if now - self.last < self.cfg.interval or (not urgent and now - self.tried < self.cfg.interval / 3):
+            return False
+        self.tried = now
+        occ = self.checker.world.snapshot().occupancy
+        if occ is None or not len(occ):
+            return False
+        taken: list[np.ndarray] = []
+
+        def detours(traj, t):
+            dq = self.reflex.offset_ahead(traj, t, occ.centers, occ.resolution)
+            if dq is None:
+                return
+            for path, own in self.reflex.detours(traj, t, dq):
+                taken.append(path[1] - traj.curve.eval(np.array([traj.s_at(t) + self.cfg.ramp]))[0])
+                yield path, own
+
+        if not self.moves.swerve(detours):
+            return False
+        self.count, self.last = self.count + 1, now
+        self.log_event("swerve", why=why, offset=round(float(np.abs(taken[-1]).max()), 4))
+        return True
