@@ -348,9 +348,18 @@ class ReflexConfig(Section):
         description="The swerve lies in the nullspace of this task: path (never along the path: progress is the "
         "time law's) or position (the hand's position held, the papers' redundant-arm setting).",
     )
-    vertices: int = Field(800, ge=50, le=20000, description="forces: vertices of the arm's model.")
-    r_max: float = Field(0.3, gt=0.0, le=1.0, description="forces: only voxels this close to a vertex push it [m].")
+    vertices: int = Field(300, ge=50, le=20000, description="forces: vertices of the arm's model.")
+    r_max: float = Field(
+        0.6,
+        gt=0.0,
+        le=1.5,
+        description="forces: only voxels this close to a vertex push it [m]; beyond the protective separation at rest, "
+        "or speed and separation stops the arm before the reflex feels anything.",
+    )
     f_max: float = Field(1.0, gt=0.0, description="forces: push of a voxel touching a vertex [N].")
+    voxel: float = Field(
+        0.03, ge=0.002, le=0.2, description="forces: the map's voxels merged into voxels this size first [m] (cost)."
+    )
     mass: float = Field(1.0, gt=0.0, description="forces: the admittance's virtual inertia per joint [kg m^2].")
     damping: float = Field(
         200.0, gt=0.0, description="forces: the admittance's damping per joint [N m s/rad]: q' = tau / damping settled."

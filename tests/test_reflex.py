@@ -84,7 +84,7 @@ def test_the_swerve_is_seed_000s_torque_through_the_admittance_in_the_nullspace(
     from replanner.reflex import Reflex
     from replanner.sections import ReflexConfig
 
-    cfg = ReflexConfig(vertices=300, r_max=0.3, mass=2.0, damping=150.0, horizon=0.3)
+    cfg = ReflexConfig(vertices=300, r_max=0.3, mass=2.0, damping=150.0, horizon=0.3, voxel=0.01)  # no merging
     r = Reflex(panda, cfg)
     rng = np.random.default_rng(4)
     Q = panda.home + rng.uniform(-0.4, 0.4, (3, panda.dof))

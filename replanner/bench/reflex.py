@@ -113,7 +113,7 @@ def run(cfg: ReplannerConfig, *, seed: int = 0, n: int = 30, r_max: float = 0.3,
 
 
 def swerve_timing(cfg: ReplannerConfig, cloud: np.ndarray, q, *, seed: int = 0, n: int = 50) -> dict:
-    """The reflex in the loop: ms per swerve direction (`Reflex.offset_ahead`: 6 points of the path ahead, one
+    """The reflex in the loop: ms per swerve direction (`Reflex.offset_ahead`: 4 points of the path ahead, one
     compiled force call or one kernel grid) for the controller's `reflex` config, both methods, the person frame's
     voxels at the map's resolution, against the control period (1 / check_rate_hz)."""
     from ..trajectory import TrajectoryGenerator

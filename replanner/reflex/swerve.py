@@ -50,9 +50,7 @@ class Reflex:
         Jacobian (K, L, 6, dof)."""
         F = self.robot.frames(Q)[:, self.model.slot]  # (K, V, 4, 4)
         V = np.einsum("kvij,vj->kvi", F[..., :3, :3], self.model.local) + F[..., :3, 3]
-        idx = [self.robot.link_index(link) for link in self.model.links]
-        origins = self.robot.fk(Q)[:, idx][..., :3, 3]
-        Js = np.stack([self.robot.jacobian(Q, link) for link in self.model.links], axis=1)
+        origins, Js = self.robot.origins_and_jacobians(Q, self.model.links)
         return V, origins, Js
 
     def _reach(self, resolution: float) -> float:
@@ -73,6 +71,14 @@ class Reflex:
         if not len(near):
             return np.zeros((K, n))
         if c.method == "forces":
+            if c.voxel > resolution:  # a direction needs no fine map: merged voxels, far fewer pairs
+                k = np.floor(near / c.voxel).astype(np.int64)
+                k -= k.min(axis=0)
+                n = k.max(axis=0) + 1
+                flat = np.unique((k[:, 0] * n[1] + k[:, 1]) * n[2] + k[:, 2])
+                i, rest = np.divmod(flat, n[1] * n[2])
+                j, m = np.divmod(rest, n[2])
+                near = (np.stack([i, j, m], axis=1) + np.floor(near.min(axis=0) / c.voxel) + 0.5) * c.voxel
             link = (np.arange(K)[:, None] * L + self.model.link[None]).ravel()
             W = self.field.compute(V.reshape(-1, 3), link, origins.reshape(-1, 3), near).reshape(K, L, 6)
             tau = np.einsum("klsd,kls->kd", Js, W)  # sum_n J_n^T [f_n; m_n]
@@ -117,12 +123,12 @@ class Reflex:
         return self._capped(self.pushes(np.asarray(q)[None], np.asarray(tangent)[None], voxels, resolution)[0])
 
     def offset_ahead(self, traj: Trajectory, t: float, voxels: np.ndarray, resolution: float) -> np.ndarray | None:
-        """The offset for a detour from time t of `traj`: the mean of the pushes at 6 points from t to the end of its
+        """The offset for a detour from time t of `traj`: the mean of the pushes at 4 points from t to the end of its
         longest hold. A detour shifts that stretch as a whole: the mean push is the gradient of the potential summed
         over the stretch (forces: sum_k tau(q_k)), not of one point's, so the detour clears what lies ahead too."""
         c, curve = self.cfg, traj.curve
         s0 = traj.s_at(t)
-        s = np.linspace(s0, min(s0 + c.ramp + 4 * c.hold, curve.length), 6)
+        s = np.linspace(s0, min(s0 + c.ramp + 4 * c.hold, curve.length), 4)
         return self._capped(self.pushes(curve.eval(s), curve.eval(s, 1), voxels, resolution).mean(axis=0))
 
     # ------------------------------------------------------------------ the detours

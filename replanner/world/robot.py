@@ -379,6 +379,24 @@ class RobotModel:
         """Pose (..., 4, 4) of one link in the base frame."""
         return self.fk(q)[..., self.link_index(link), :, :]
 
+    def origins_and_jacobians(self, Q: np.ndarray, links) -> tuple[np.ndarray, np.ndarray]:
+        """The origins (N, n, 3) [m] and geometric Jacobians (N, n, 6, dof) of n links at configurations Q (N, dof),
+        from one forward kinematics pass (rows as `jacobian`)."""
+        Q = np.asarray(Q, dtype=np.float64).reshape(-1, self.dof)
+        frames = self.frames(Q)
+        G, T = frames[:, 1:], self._link_transforms(frames)
+        z, o = G[:, :, :3, 2], G[:, :, :3, 3]
+        rev = ~self._prismatic
+        idx = [self.link_index(link) for link in links]
+        J = np.zeros((len(Q), len(idx), 6, self.dof))
+        for n, li in enumerate(idx):
+            k = self._link_frame[li]
+            mask = self._frame_anc[k] if k >= 0 else np.zeros(self.dof, dtype=bool)
+            lin = np.where(rev[None, :, None], np.cross(z, T[:, li, None, :3, 3] - o), z)
+            J[:, n, :3] = np.swapaxes(lin, 1, 2) * mask
+            J[:, n, 3:] = np.swapaxes(z, 1, 2) * (mask & rev)
+        return T[:, idx][..., :3, 3], J
+
     def jacobian(self, q, link: str | None = None, point_in_link=None) -> np.ndarray:
         """Geometric Jacobian (..., 6, dof) of a point on a link: rows [v_x, v_y, v_z, w_x, w_y, w_z] in the base frame.
 
