@@ -566,7 +566,8 @@ def test_messages_decode_as_standard_ros2_types(svc):
     from rosbags.typesys import Stores, get_typestore
 
     n = len(svc.rec.trajectories)
-    assert _move(svc, joints=A)["status"] == "succeeded"
+    res = _move(svc, joints=A)
+    assert res["status"] == "succeeded", res
     for store in (Stores.ROS2_HUMBLE, Stores.ROS2_JAZZY):
         ts = get_typestore(store)
         traj = ts.deserialize_cdr(svc.rec.trajectories[n], "trajectory_msgs/msg/JointTrajectory")
