@@ -43,6 +43,8 @@ class Reflex:
         self._poi = [self.model.local[self.model.link == i].mean(axis=0) for i in range(len(self.model.links))]
         self._kernels: AvoidanceKernels | None = None
         self.last_push: np.ndarray | None = None  # the last offset before its cap [rad]
+        # compile (or load from the cache) the force kernel now: a first compile takes seconds, blind mid-motion
+        self.pushes(robot.home[None], np.eye(robot.dof)[:1], self.model.place(robot, robot.home)[:1] + 0.05, 0.01)
 
     # ------------------------------------------------------------------ which way
     def _kinematics(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
