@@ -41,18 +41,13 @@ class Swerves:
         occ = self.checker.world.snapshot().occupancy
         if occ is None or not len(occ):
             return False
-        taken: list[np.ndarray] = []
 
         def detours(traj, t):
             dq = self.reflex.offset_ahead(traj, t, occ.centers, occ.resolution)
-            if dq is None:
-                return
-            for path, own in self.reflex.detours(traj, t, dq):
-                taken.append(path[1] - traj.curve.eval(np.array([traj.s_at(t) + self.cfg.ramp]))[0])
-                yield path, own
+            return () if dq is None else self.reflex.detours(traj, t, dq)
 
         if not self.moves.swerve(detours):
             return False
         self.count, self.last = self.count + 1, now
-        self.log_event("swerve", why=why, offset=round(float(np.abs(taken[-1]).max()), 4))
+        self.log_event("swerve", why=why, offset=round(float(np.abs(self.reflex.last_detour).max()), 4))
         return True

@@ -20,9 +20,21 @@ import numpy as np
 
 from ..sections import ReflexConfig
 from ..trajectory import Trajectory, progress_along
+from ..world.occupancy import voxel_centers, voxel_keys
 from ..world.robot import RobotModel
 from .forces import ForceField, VertexModel
 from .kernels import AvoidanceKernels, KernelSpec, OccupancyGrid
+
+
+def _unique_keys(keys: np.ndarray) -> np.ndarray:
+    """The distinct rows of integer keys (N, 3), as flat indices (np.unique on rows is several times slower)."""
+    lo = keys.min(axis=0)
+    k = keys - lo
+    n = k.max(axis=0) + 1
+    flat = np.unique((k[:, 0] * n[1] + k[:, 1]) * n[2] + k[:, 2])
+    i, rest = np.divmod(flat, n[1] * n[2])
+    j, m = np.divmod(rest, n[2])
+    return np.stack([i, j, m], axis=1) + lo
 
 
 class Reflex:
@@ -43,6 +55,7 @@ class Reflex:
         self._poi = [self.model.local[self.model.link == i].mean(axis=0) for i in range(len(self.model.links))]
         self._kernels: AvoidanceKernels | None = None
         self.last_push: np.ndarray | None = None  # the last offset before its cap [rad]
+        self.last_detour: np.ndarray | None = None
         # compile (or load from the cache) the force kernel now: a first compile takes seconds, blind mid-motion
         self.pushes(robot.home[None], np.eye(robot.dof)[:1], self.model.place(robot, robot.home)[:1] + 0.05, 0.01)
 
@@ -74,13 +87,7 @@ class Reflex:
             return np.zeros((K, n))
         if c.method == "forces":
             if c.voxel > resolution:  # a direction needs no fine map: merged voxels, far fewer pairs
-                k = np.floor(near / c.voxel).astype(np.int64)
-                k -= k.min(axis=0)
-                n = k.max(axis=0) + 1
-                flat = np.unique((k[:, 0] * n[1] + k[:, 1]) * n[2] + k[:, 2])
-                i, rest = np.divmod(flat, n[1] * n[2])
-                j, m = np.divmod(rest, n[2])
-                near = (np.stack([i, j, m], axis=1) + np.floor(near.min(axis=0) / c.voxel) + 0.5) * c.voxel
+                near = voxel_centers(_unique_keys(voxel_keys(near, c.voxel)), c.voxel)
             link = (np.arange(K)[:, None] * L + self.model.link[None]).ravel()
             W = self.field.compute(V.reshape(-1, 3), link, origins.reshape(-1, 3), near).reshape(K, L, 6)
             tau = np.einsum("klsd,kls->kd", Js, W)  # sum_n J_n^T [f_n; m_n]
@@ -101,9 +108,9 @@ class Reflex:
             Jp = Js[..., :3, :] - np.cross(r[..., None, :], np.swapaxes(Js[..., 3:, :], -1, -2)).swapaxes(-1, -2)
             JtJ = np.swapaxes(Jp, -1, -2) @ Jp + 1e-3 * np.eye(n)
             dq = c.horizon * np.linalg.solve(JtJ, np.swapaxes(Jp, -1, -2) @ xd[..., None])[..., 0].sum(axis=1)
-        return np.einsum("kij,kj->ki", self._nullspaces(Q, np.atleast_2d(tangents), Js), dq)
+        return np.einsum("kij,kj->ki", self._nullspaces(Q, np.atleast_2d(tangents)), dq)
 
-    def _nullspaces(self, Q: np.ndarray, tangents: np.ndarray, Js: np.ndarray) -> np.ndarray:
+    def _nullspaces(self, Q: np.ndarray, tangents: np.ndarray) -> np.ndarray:
         """The task's nullspace projectors (K, dof, dof): across the path's tangent, or the hand's position held."""
         n = Q.shape[1]
         if self.cfg.task == "position":
@@ -160,6 +167,7 @@ class Reflex:
                 rest = P[cum > float(progress_along(back[None], P)[0]) + 1e-6] if s3 < end - 1e-6 else P[:0]
                 mid = [np.clip(A + d, lo, hi)] + ([np.clip(B + d, lo, hi)] if s2 > s1 + 1e-6 else [])
                 W = np.vstack([q0[None], *[m[None] for m in mid], back[None], rest])
+                self.last_detour = d  # the offset of the detour yielded last (the one sent, if any)
                 yield W, W[: len(mid) + 2]
                 if s3 >= end - 1e-6:
                     break  # a longer hold would end at the same place

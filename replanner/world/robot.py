@@ -379,23 +379,28 @@ class RobotModel:
         """Pose (..., 4, 4) of one link in the base frame."""
         return self.fk(q)[..., self.link_index(link), :, :]
 
+    def _jacobians_at(self, frames: np.ndarray, li: int, p: np.ndarray) -> np.ndarray:
+        """Geometric Jacobians (N, 6, dof) of points p (N, 3) [m] carried by link li, from `frames` (N, 1 + dof)."""
+        G = frames[:, 1:]
+        z, o = G[:, :, :3, 2], G[:, :, :3, 3]
+        k = self._link_frame[li]
+        mask = self._frame_anc[k] if k >= 0 else np.zeros(self.dof, dtype=bool)
+        J = np.zeros((len(frames), 6, self.dof))
+        rev = ~self._prismatic
+        lin = np.where(rev[None, :, None], np.cross(z, p[:, None, :] - o), z)
+        J[:, :3] = np.swapaxes(lin, 1, 2) * mask
+        J[:, 3:] = np.swapaxes(z, 1, 2) * (mask & rev)
+        return J
+
     def origins_and_jacobians(self, Q: np.ndarray, links) -> tuple[np.ndarray, np.ndarray]:
         """The origins (N, n, 3) [m] and geometric Jacobians (N, n, 6, dof) of n links at configurations Q (N, dof),
         from one forward kinematics pass (rows as `jacobian`)."""
         Q = np.asarray(Q, dtype=np.float64).reshape(-1, self.dof)
         frames = self.frames(Q)
-        G, T = frames[:, 1:], self._link_transforms(frames)
-        z, o = G[:, :, :3, 2], G[:, :, :3, 3]
-        rev = ~self._prismatic
+        T = self._link_transforms(frames)
         idx = [self.link_index(link) for link in links]
-        J = np.zeros((len(Q), len(idx), 6, self.dof))
-        for n, li in enumerate(idx):
-            k = self._link_frame[li]
-            mask = self._frame_anc[k] if k >= 0 else np.zeros(self.dof, dtype=bool)
-            lin = np.where(rev[None, :, None], np.cross(z, T[:, li, None, :3, 3] - o), z)
-            J[:, n, :3] = np.swapaxes(lin, 1, 2) * mask
-            J[:, n, 3:] = np.swapaxes(z, 1, 2) * (mask & rev)
-        return T[:, idx][..., :3, 3], J
+        origins = T[:, idx][..., :3, 3]
+        return origins, np.stack([self._jacobians_at(frames, li, origins[:, n]) for n, li in enumerate(idx)], axis=1)
 
     def jacobian(self, q, link: str | None = None, point_in_link=None) -> np.ndarray:
         """Geometric Jacobian (..., 6, dof) of a point on a link: rows [v_x, v_y, v_z, w_x, w_y, w_z] in the base frame.
@@ -407,22 +412,12 @@ class RobotModel:
         """
         q = self.check_q(q)
         li = self.link_index(link or self.tip_link)
-        Q = q.reshape(-1, self.dof)
-        frames = self.frames(Q)
-        G = frames[:, 1:]
+        frames = self.frames(q.reshape(-1, self.dof))
         T = self._link_transforms(frames)[:, li]
         p = T[:, :3, 3]
         if point_in_link is not None:
             p = p + T[:, :3, :3] @ np.asarray(point_in_link, dtype=float)
-        z, o = G[:, :, :3, 2], G[:, :, :3, 3]
-        k = self._link_frame[li]
-        mask = self._frame_anc[k] if k >= 0 else np.zeros(self.dof, dtype=bool)
-        J = np.zeros((len(Q), 6, self.dof))
-        rev = ~self._prismatic
-        lin = np.where(rev[None, :, None], np.cross(z, p[:, None, :] - o), z)
-        J[:, :3] = np.swapaxes(lin, 1, 2) * mask
-        J[:, 3:] = np.swapaxes(z, 1, 2) * (mask & rev)
-        return J.reshape(q.shape[:-1] + (6, self.dof))
+        return self._jacobians_at(frames, li, p).reshape(q.shape[:-1] + (6, self.dof))
 
     # ------------------------------------------------------------------ helpers for the checker
     def link_frame_index(self, link: str) -> int:
