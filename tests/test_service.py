@@ -87,7 +87,9 @@ def svc(tmp_path_factory):
     data["perception"]["sensors"] = [front]
     # the service's plumbing and replanning: speed and separation (which stops the arm near the dropped box, as it
     # must near anything that may be a person) is tested on its own (tests/test_ssm.py)
-    data["controller"] = {"speed_separation": {"enabled": False}}
+    # the camera renders in this test's process: beside busy processes it can miss a second of frames, and the service
+    # then (rightly) brakes for a silent camera; that watchdog is tested on its own (test_controller, cameras_on)
+    data["controller"] = {"speed_separation": {"enabled": False}, "sensor_timeout": 3.0}
     stack_dir = tmp / "cfg"
     stack_dir.mkdir()
     cfg_path = stack_dir / "panda_test.yaml"
