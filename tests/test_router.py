@@ -58,6 +58,41 @@ def test_a_pick_and_place_cycle_through_a_router(tmp_path):
             p.stop()
 
 
+def test_a_service_started_before_its_router_waits_for_it(tmp_path):
+    """Processes of a cell start in any order (compose, systemd): a client that finds no router yet keeps trying."""
+    router_ep = f"tcp/127.0.0.1:{free_port()}"
+    procs = [
+        Proc("serve", replanner_cmd("serve", "-c", "demo", "--no-cameras", "-m", "client", "-e", router_ep), tmp_path)
+    ]
+    session = None
+    try:
+        time.sleep(2.0)  # longer than Zenoh's first retry period (1 s): a client that gives up would be gone
+        assert procs[0].alive(), procs[0].tail()
+        procs.append(Proc("router", replanner_cmd("router", "-l", router_ep), tmp_path))
+        session = open_session(make_config(TransportConfig(), "node", "client", [router_ep]))
+        client = Client(session, "panda", timeout=10.0)
+        end = time.monotonic() + 60
+        while not client.wait_alive(1.0):
+            assert time.monotonic() < end and all(p.alive() for p in procs), "\n".join(p.tail() for p in procs)
+    finally:
+        if session is not None:
+            session.close()
+        for p in reversed(procs):
+            p.stop()
+
+
+def test_a_client_waits_for_its_router_unless_its_file_says_otherwise(tmp_path):
+    wait = json.loads(make_config(TransportConfig(), "node", "client", ["tcp/127.0.0.1:7447"]).get_json("connect"))
+    assert wait["timeout_ms"]["client"] == 30000 and wait["exit_on_failure"]["client"] is True
+    own = tmp_path / "own.json5"
+    own.write_text('{mode: "client", connect: {endpoints: ["tcp/127.0.0.1:7447"], timeout_ms: {client: 500}}}')
+    assert json.loads(
+        make_config(TransportConfig(), "node", None, (), (), str(own)).get_json("connect/timeout_ms")
+    ) == {"client": 500}
+    # a peer never exits for an absent endpoint: nothing to add
+    assert json.loads(make_config(TransportConfig(), "node", "peer").get_json("connect/timeout_ms")) is None
+
+
 def test_shipped_zenoh_configs_are_client_and_router():
     import zenoh
 

@@ -42,6 +42,7 @@ def make_config(
             conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
         if listen:
             conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        _wait_for_router(conf)
         return conf
     mode = mode or transport.mode
     conf = zenoh.Config()
@@ -61,7 +62,18 @@ def make_config(
     elif mode == "peer":
         conf.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))  # loopback only, any port
     conf.insert_json5("scouting/multicast/enabled", json.dumps(transport.multicast_scouting))
+    _wait_for_router(conf)
     return conf
+
+
+ROUTER_WAIT_MS = 30000
+
+
+def _wait_for_router(conf: zenoh.Config) -> None:
+    """A client that was not told how long to wait for its router waits 30 s: processes start in any order."""
+    if json.loads(conf.get_json("mode")) == "client" and json.loads(conf.get_json("connect/timeout_ms")) is None:
+        conf.insert_json5("connect/timeout_ms", json.dumps({"router": -1, "peer": -1, "client": ROUTER_WAIT_MS}))
+        conf.insert_json5("connect/exit_on_failure", json.dumps({"router": False, "peer": False, "client": True}))
 
 
 def zenoh_config_file(name: str) -> Path:
