@@ -166,7 +166,19 @@ class Service:
 
     def _publish_status(self) -> None:
         period = 1.0 / self.cfg.transport.status_rate_hz
+        withheld = False
         while not self._stop.wait(period):
+            stuck = self.controller.inbox.stuck_for()
+            if stuck > self.cfg.controller.robot_watchdog / 4:
+                if not withheld:  # the status is the robot's heartbeat: it must stop when no one watches the path
+                    log.error(
+                        "status withheld: the controller has been in one step for %.1f s (the robot brakes)", stuck
+                    )
+                withheld = True
+                continue
+            if withheld:
+                log.warning("status resumes: the controller is stepping again")
+                withheld = False
             try:
                 state = self.state()
                 self.pub_status.put(m.dumps(state))

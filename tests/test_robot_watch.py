@@ -127,3 +127,65 @@ def test_sigkill_of_the_service_mid_motion_the_sim_brakes_along_its_path(tmp_pat
         session.close()
         sim.stop()
         serve.stop()
+
+
+def test_a_controller_stuck_in_one_step_silences_the_heartbeat_and_the_robot_brakes(tmp_path):
+    """The service process lives, but its controller hangs in a step (a compile, a lock, a bug): its status must stop
+    too, or the robot runs on unwatched. A real kinematic robot process; the service in this process, its step held."""
+    import threading
+    from types import SimpleNamespace
+
+    from replanner_services.serve import Service
+
+    from replanner.transport.session import make_config, open_session
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    data = yaml.safe_load((CONFIGS / "panda.yaml").read_text())
+    data["transport"] = {**data.get("transport", {}), "endpoint": endpoint}
+    data["controller"] = {"speed_separation": {"enabled": False}, "robot_watchdog": 1.0}
+    cfg_path = tmp_path / "panda_watch.yaml"
+    cfg_path.write_text(yaml.safe_dump(data))
+    cfg = parse_config(data, base_dir=CONFIGS).model_copy(update={"perception": None})
+    robot = RobotModel.from_config(cfg.robot)
+    served = open_session(make_config(cfg.transport, "service"))
+    service = Service(cfg, served, planning_process=False).start()
+    proc = Proc("robot", replanner_cmd("robot", "--kinematic", "-c", str(cfg_path), "-e", endpoint), tmp_path)
+    session = node_session(endpoint)
+    rec, release = None, threading.Event()
+    try:
+        client = Client(session, "panda", timeout=10.0)
+        rec = Recorder(session, client.keys, robot.joint_names)
+        _wait(lambda: client.state()["position"] is not None and rec.js, 30, "the robot's joint states")
+        assert client.send_goal(HOME).wait(30)["status"] == "succeeded"
+        client.send_goal(FAR, velocity_scale=0.15)
+        _wait(lambda: client.state()["state"] == "MONITORING", 20, "the motion")
+        _wait(lambda: np.abs(rec.latest()[2]).max() > 0.05, 10, "the arm at speed")
+        tick = service.controller.inbox._tick
+        service.controller.inbox._tick = lambda: release.wait(30) and tick()  # the next step hangs until released
+        held = time.time()
+        _wait(lambda: np.abs(rec.latest()[2]).max() < 1e-9, 20, "the robot to stand", SimpleNamespace(logs=proc.tail))
+        stamps = np.array([s for s, _, _ in rec.js])
+        V = np.array([v for _, _, v in rec.js])
+        Q = np.array([q for _, q, _ in rec.js])
+        after = stamps >= held
+        slowing = stamps[after][np.linalg.norm(V[after], axis=1) < 0.95 * np.linalg.norm(V[after][0])]
+        assert np.abs(Q[-1] - np.array(FAR)).max() > 0.3, "the robot ran on to the goal"
+        assert slowing[0] - held <= 2 * cfg.controller.robot_watchdog, slowing[0] - held
+        assert "the service is lost" in proc.tail(200)
+        assert service.controller.inbox.stuck_for() > 0.5
+        print(f"braking began {slowing[0] - held:.3f} s after the controller hung")
+        release.set()
+        service.controller.inbox._tick = tick
+        _wait(lambda: service.controller.inbox.stuck_for() == 0.0, 10, "the controller to step again")
+        heard = []
+        sub = session.declare_subscriber(client.keys.status, lambda s: heard.append(s))
+        _wait(lambda: heard, 5, "the status stream again")
+        sub.undeclare()
+    finally:
+        release.set()
+        if rec is not None:
+            rec.close()
+        session.close()
+        proc.stop()
+        service.stop()
+        served.close()

@@ -42,6 +42,14 @@ class Inbox:
         self._queue: queue.Queue = queue.Queue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._step_began: float | None = None  # monotonic, while a step runs
+
+    def stuck_for(self) -> float:
+        """How long [s] the step now running has taken (0 between steps); inf if the inbox's thread died."""
+        if self._thread is not None and not self._thread.is_alive() and not self._stop.is_set():
+            return float("inf")
+        began = self._step_began
+        return 0.0 if began is None else time.monotonic() - began
 
     def put(self, kind: Input, data=None) -> None:
         self._queue.put((kind, data))
@@ -74,6 +82,7 @@ class Inbox:
             except queue.Empty:
                 break
         t0 = time.perf_counter()
+        self._step_began = time.monotonic()
         try:
             for kind, data in events:
                 self._handle(kind, data)
@@ -88,3 +97,5 @@ class Inbox:
         except Exception:
             log.exception("controller error")
             self._fail("internal error (see the log)")
+        finally:
+            self._step_began = None

@@ -68,7 +68,7 @@ class ServiceWatch:
         self.last_status, self._silent = self.clock(), False
 
     def _run(self) -> None:
-        while not self._stop.wait(self.max_age / 4):
+        while not self._stop.wait(self.max_age / 10):
             last = self.last_status
             if last is not None and not self._silent and self.clock() - last > self.max_age:
                 self._silent = True
