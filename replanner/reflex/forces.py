@@ -132,7 +132,7 @@ class ForceField:
         L = len(origins)
         if not len(voxels) or not len(vertices):
             return np.zeros((L, 6))
-        cell = self.r_max
+        cell = self.r_max / CELLS_PER_R  # finer cells, culled by distance: fewer pairs tried beyond r_max
         lo = voxels.min(axis=0) - cell
         dims = np.floor((voxels.max(axis=0) + cell - lo) / cell).astype(np.int64) + 1
         ck = np.floor((voxels - lo) / cell).astype(np.int64)
@@ -158,6 +158,9 @@ class ForceField:
         return out
 
 
+CELLS_PER_R = 2  # grid cells per r_max: 5^3 cells around a vertex, those wholly beyond r_max skipped
+
+
 @numba.njit(cache=True, parallel=True, fastmath=False)
 def _vertex_forces(R, V, start, lo, dims, cell, r_max, f_max, O, out):  # fmt: skip
     r2 = r_max * r_max
@@ -167,9 +170,17 @@ def _vertex_forces(R, V, start, lo, dims, cell, r_max, f_max, O, out):  # fmt: s
         cy = int(np.floor((y - lo[1]) / cell))
         cz = int(np.floor((z - lo[2]) / cell))
         fx = fy = fz = 0.0
-        for a in range(max(cx - 1, 0), min(cx + 2, dims[0])):
-            for b in range(max(cy - 1, 0), min(cy + 2, dims[1])):
-                for c in range(max(cz - 1, 0), min(cz + 2, dims[2])):
+        k = CELLS_PER_R
+        for a in range(max(cx - k, 0), min(cx + k + 1, dims[0])):
+            ex = max(lo[0] + a * cell - x, 0.0, x - lo[0] - (a + 1) * cell)
+            for b in range(max(cy - k, 0), min(cy + k + 1, dims[1])):
+                ey = max(lo[1] + b * cell - y, 0.0, y - lo[1] - (b + 1) * cell)
+                if ex * ex + ey * ey >= r2:
+                    continue
+                for c in range(max(cz - k, 0), min(cz + k + 1, dims[2])):
+                    ez = max(lo[2] + c * cell - z, 0.0, z - lo[2] - (c + 1) * cell)
+                    if ex * ex + ey * ey + ez * ez >= r2:  # the whole cell is beyond r_max
+                        continue
                     f = (a * dims[1] + b) * dims[2] + c
                     for j in range(start[f], start[f + 1]):
                         dx, dy, dz = x - V[j, 0], y - V[j, 1], z - V[j, 2]
