@@ -115,6 +115,37 @@ def test_a_brake_calls_off_a_motion_sent_but_not_started(panda):
         np.testing.assert_allclose(moves.timeline.state(t)[0], panda.home)
 
 
+def test_a_slow_down_keeps_a_splice_about_to_land_and_slows_it(panda):
+    """Speed and separation slows the arm while a replan's splice is on its way: the splice still lands (slowed from
+    where it lands); slowing the motion before it would call the avoidance off."""
+    gen = TrajectoryGenerator(panda)
+    now = [10.0]
+    robot = Timeline(panda.home)
+    moves = Moves(panda.home, gen, robot.add, lambda: now[0], 0.01, lambda *a, **k: None, lead=0.05)
+    goal = panda.home + np.r_[0.8, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    start = moves.send_planned(gen.time(np.array([panda.home, goal])))
+    now[0] = start + 0.4
+    land = now[0] + 0.15  # the replan's landing time
+    base = moves.timeline.active(land)[1]
+    q_land = base.state_at(land - start)[0]
+    around = np.array([q_land, q_land + np.r_[0.2, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0], goal])
+    moves.send_planned(gen.splice(base, land - start, around), land)
+    now[0] += 0.02
+    moves.slow_down(0.5)
+    segs = moves.timeline.segments()
+    assert segs[-1][0] == land, "the splice was called off"
+    assert moves.timeline.later(now[0])[0][1].curve is not base.curve  # on the new path
+    slowed = segs[-1][1]
+    assert float((slowed.limits.velocity / slowed.nominal.velocity).max()) == pytest.approx(0.5)
+    for k in range(3):  # where it lands, the slowed splice starts in the running motion's state
+        np.testing.assert_allclose(slowed.state_at(0.0)[k], base.state_at(land - start)[k], atol=1e-6)
+    np.testing.assert_allclose(robot.state(100.0)[0], goal, atol=1e-6)  # and reaches the goal on the new path
+    # without a splice on its way, the running motion itself is slowed from now + latency
+    now[0] = land + 0.3
+    moves.slow_down(0.3)
+    assert moves.timeline.segments()[-1][0] == pytest.approx(now[0] + 0.01)
+
+
 def test_a_motion_the_robot_started_late_is_braked_from_where_the_arm_is(panda):
     """The robot got a motion from rest 240 ms after its stamp and started it on arrival (as the CI machine saw);
     the controller sees the measured arm behind, moves its record, and a brake then starts where the arm is."""

@@ -14,6 +14,7 @@ log = logging.getLogger(__name__)
 
 LATE_START = 0.1  # [s] a motion from rest this far behind its stamp on the measured arm was started late
 FOLLOWING = 0.01  # [rad] the measured arm this close to the path is following it
+SPLICE_DEFER = 0.25  # [s] a slow-down waits this long at most for a splice to land (a brake never waits)
 
 
 class Moves:
@@ -43,6 +44,7 @@ class Moves:
         self.lead = max(lead, latency)  # a motion from rest: no hurry, and it must reach the robot before it starts
         self.log_event = log_event
         self.sent = 0  # trajectories sent so far (the latency account times decision -> command)
+        self._splice: tuple[float, object] | None = None  # (land, trajectory) of the last splice sent
 
     def send(self, traj: Trajectory, start: float) -> None:
         """Run `traj` from `start` [clock s] on, replacing what would run from then."""
@@ -55,6 +57,8 @@ class Moves:
         start [clock s]."""
         start = self.clock() + self.lead if land is None else land
         self.send(traj, start)
+        if land is not None:
+            self._splice = (start, traj)
         return start
 
     def resync(self, q, now: float):
@@ -112,11 +116,30 @@ class Moves:
         self.log_event("brake", duration=stop.duration)
         return stop
 
+    def _pending_splice(self) -> tuple[float, Trajectory] | None:
+        """(land, trajectory) of a splice sent and still to start within SPLICE_DEFER [s]; None otherwise."""
+        later = self.timeline.later(self.clock() + self.latency)
+        if len(later) != 1 or self._splice is None or later[0][1] is not self._splice[1]:
+            return None
+        land, traj = later[0]
+        return (land, traj) if land - self.clock() - self.latency <= SPLICE_DEFER else None
+
     def slow_down(self, factor: float) -> None:
-        """Go on along the same curve at `factor` <= 1 of the nominal speed (1: back to it)."""
+        """Go on along the same curve at `factor` <= 1 of the nominal speed (1: back to it). With a splice about to
+        land, the splice is slowed from where it lands: slowing the motion before it would call it off."""
         run = self._running()
         if factor > 1.0 or run is None:
             return
+        if (pending := self._pending_splice()) is not None and isinstance(pending[1], Trajectory):
+            land, spliced = pending
+            try:
+                slow = self.gen.slow_down(spliced, 0.0, factor)
+            except TrajectoryError as err:
+                log.warning("cannot slow the splice down: %s", err)
+            else:
+                self.send(slow, land)
+                self._splice = (land, slow)
+                return
         start, traj, t = run
         try:
             slow = self.gen.slow_down(traj, t, factor)
@@ -157,6 +180,7 @@ class Moves:
                 continue
             new.nominal = traj.nominal  # a slowed motion stays slowed: the next speed-up goes back to the goal's limits
             self.send(new, start + t)
+            self._splice = (start + t, new)
             return True
         return False
 
