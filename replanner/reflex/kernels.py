@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from ..world.robot import RobotModel
@@ -74,12 +75,26 @@ class AvoidanceKernels:
 
     def velocities(self, grid: OccupancyGrid, points: np.ndarray) -> np.ndarray:
         """Avoidance velocities (P, 3) [m/s] at points (P, 3) [m]: per axis, the sum of the kernel times the grid."""
-        P = np.asarray(points, dtype=float)
+        P = np.ascontiguousarray(points, dtype=np.float64)
         out = np.empty((len(P), 3))
-        for d in range(3):
-            occ = grid.sample(P[:, None, :] + self.offsets[d][None])  # (P, S)
-            out[:, d] = occ @ self.values[d]
+        _kernel_sums(grid.a, grid.lo, grid.res, P, self.offsets, self.values.astype(np.float64), out)
         return self.spec.gain * out
+
+
+@numba.njit(cache=True)
+def _kernel_sums(a, lo, res, P, offsets, values, out):  # fmt: skip
+    # OccupancyGrid.sample at every point + offset, times the kernel: no (P, S, 3) temporaries
+    nx, ny, nz = a.shape
+    for i in range(P.shape[0]):
+        for d in range(3):
+            acc = 0.0
+            for j in range(offsets.shape[1]):
+                kx = int(np.floor((P[i, 0] + offsets[d, j, 0] - lo[0]) / res))
+                ky = int(np.floor((P[i, 1] + offsets[d, j, 1] - lo[1]) / res))
+                kz = int(np.floor((P[i, 2] + offsets[d, j, 2] - lo[2]) / res))
+                if 0 <= kx < nx and 0 <= ky < ny and 0 <= kz < nz and a[kx, ky, kz] != 0.0:
+                    acc += a[kx, ky, kz] * values[d, j]
+            out[i, d] = acc
 
 
 class OccupancyGrid:

@@ -56,7 +56,7 @@ class Reflex:
         self._kernels: AvoidanceKernels | None = None
         self.last_push: np.ndarray | None = None  # the last offset before its cap [rad]
         self.last_detour: np.ndarray | None = None
-        # compile (or load from the cache) the force kernel now: a first compile takes seconds, blind mid-motion
+        # compile (or load from the cache) the method's kernel now: a first compile takes seconds, blind mid-motion
         self.pushes(robot.home[None], np.eye(robot.dof)[:1], self.model.place(robot, robot.home)[:1] + 0.05, 0.01)
 
     # ------------------------------------------------------------------ which way
@@ -101,8 +101,12 @@ class Reflex:
             # points of interest: the centre of each link's vertices
             P = np.stack([V[:, self.model.link == i].mean(axis=1) for i in range(L)], axis=1)  # (K, L, 3)
             flat = P.reshape(-1, 3)
-            g_lo = flat.min(axis=0) - reach
-            grid = OccupancyGrid(g_lo, flat.max(axis=0) + reach - g_lo, resolution).fill(near)
+            # the grid spans only the occupied voxels within reach: outside it every sample reads 0 anyway
+            g_lo = (
+                np.floor(np.maximum(flat.min(axis=0) - reach, near.min(axis=0)) / resolution) * resolution
+            )  # cells = map voxels
+            g_hi = np.minimum(flat.max(axis=0) + reach, near.max(axis=0) + resolution)
+            grid = OccupancyGrid(g_lo, np.maximum(g_hi - g_lo, resolution), resolution).fill(near)
             xd = kern.velocities(grid, flat).reshape(K, L, 3)
             r = P - origins
             Jp = Js[..., :3, :] - np.cross(r[..., None, :], np.swapaxes(Js[..., 3:, :], -1, -2)).swapaxes(-1, -2)
