@@ -104,10 +104,12 @@ def router(
     import threading
 
     from replanner.sections import TransportConfig
+    from replanner.transport.refusals import Refusals, access_control_on
     from replanner.transport.session import open_session
 
     try:
         conf = ZenohFlags.of("router", connect, listen, zenoh_config).config(TransportConfig(), "service")
+        refusals = Refusals.capture() if access_control_on(conf) else None
         session = open_session(conf)
     except ReplannerError as err:
         fail(err)
@@ -119,6 +121,8 @@ def router(
             pass
     except KeyboardInterrupt:
         pass
+    if refusals is not None:
+        print(f"replanner: the router refused {refusals.total} messages by access control", flush=True)
     session.close()
 
 

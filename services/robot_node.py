@@ -16,6 +16,7 @@ from replanner.errors import InvalidInputError
 from replanner.trajectory import SampledTrajectory
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
+from replanner.transport.refusals import Refusals, access_control_on
 from replanner.transport.watch import ServiceWatch
 from replanner.world.robot import RobotModel
 
@@ -85,11 +86,16 @@ def run(cfg: ReplannerConfig, conf: zenoh.Config, q0=None) -> None:
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
+    refusals = Refusals.capture() if access_control_on(conf) else None
     session = open_session(conf)
     try:
         node = KinematicRobotNode(cfg, session, q0).start()
         print(f"replanner: kinematic {node.robot.name} on {node.keys.root} (Ctrl-C stops)", file=sys.stderr, flush=True)
         done.wait()
         node.stop()
+        if refusals is not None:
+            log.warning(
+                "refused %d messages by access control; %d trajectories rejected", refusals.total, node.rejected
+            )
     finally:
         session.close()

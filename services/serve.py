@@ -22,6 +22,7 @@ from replanner.planning import JointGoal, PoseGoal
 from replanner.stack import build_stack
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
+from replanner.transport.refusals import Refusals, access_control_on
 from replanner.world.geometry import encloses_base, gap_to_links
 from replanner.world.transforms import check_transform
 
@@ -36,12 +37,19 @@ class Service:
         cfg: the full config.
         session: an open Zenoh session (the service does not close it).
         planning_process: plan in a child process (the product default).
+        refusals: what Zenoh's access control refused in this process (`Refusals.capture`), shown in the status.
     """
 
     def __init__(
-        self, cfg: ReplannerConfig, session: zenoh.Session, *, planning_process: bool | None = None, clock=time.time
+        self,
+        cfg: ReplannerConfig,
+        session: zenoh.Session,
+        *,
+        planning_process: bool | None = None,
+        clock=time.time,
+        refusals: Refusals | None = None,
     ):
-        self.cfg, self.session, self.clock = cfg, session, clock
+        self.cfg, self.session, self.clock, self.refusals = cfg, session, clock, refusals
         plan_in = None if planning_process is None else ("process" if planning_process else "thread")
         self.stack = build_stack(cfg, execute=self._execute, plan_in=plan_in, clock=clock)
         self.robot, self.world = self.stack.robot, self.stack.world
@@ -160,6 +168,7 @@ class Service:
                 "attachments": sorted(self.world.attachments),
                 "map_voxels": len(occ) if occ is not None else 0,
                 "rejections": dict(self.rejections),
+                "access_refused": self.refusals.table() if self.refusals is not None else None,
             }
         )
         return st
@@ -401,9 +410,10 @@ def run(cfg: ReplannerConfig, conf: zenoh.Config) -> None:
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
+    refusals = Refusals.capture() if access_control_on(conf) else None
     session = open_session(conf)
     try:
-        service = Service(cfg, session).start()
+        service = Service(cfg, session, refusals=refusals).start()
         print(f"replanner: serving {service.keys.root} (Ctrl-C stops)", file=sys.stderr, flush=True)
         done.wait()
         log.info("stopping")

@@ -196,9 +196,11 @@ def run_sim(
     operator: bool,
     cameras_cmd: list[str] | None,
 ) -> None:
+    from replanner.transport.refusals import Refusals, access_control_on
     from replanner.transport.session import open_session
 
     done = _wait_for_signal()
+    refusals = Refusals.capture() if access_control_on(conf) else None  # the sim is the robot: it counts too
     session = open_session(conf)
     child = None
     try:
@@ -216,6 +218,8 @@ def run_sim(
                 print(f"replanner: the camera process exited ({child.returncode})", file=sys.stderr, flush=True)
                 break
         node.stop()
+        if refusals is not None:
+            print(f"replanner: the sim refused {refusals.total} messages by access control", file=sys.stderr)
     finally:
         if child is not None and child.poll() is None:
             child.send_signal(signal.SIGINT)

@@ -20,6 +20,7 @@ from replanner.errors import ConfigError
 from replanner.sections import TransportConfig
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
+from replanner.transport.refusals import Refusals
 from replanner.transport.secure import (
     DEFAULT_IDENTITIES,
     Identity,
@@ -154,7 +155,7 @@ def cell(request, tmp_path):
             robot,
             session,
         )
-        ns.procs, ns.logs, ns.tmp = procs, logs, tmp_path
+        ns.procs, ns.logs, ns.tmp, ns.via_router = procs, logs, tmp_path, via_router
         yield ns
         rec.close()
         client.close()
@@ -225,7 +226,10 @@ def test_only_the_cells_identities_play_their_parts(cell):
             s.put(keys.cloud("rear"), m.encode_cloud(time.time(), np.zeros((10, 3), np.float32), "rear"))
     assert _still(cell) < 1e-9, "a trajectory from someone other than the service moved the robot"
     state = cell.client.state()
-    assert state["rejections"] == state0["rejections"], "a spoofed joint state or cloud reached the service"
+    spoofed = {k: n for k, n in state["rejections"].items() if k != "clouds/front"}  # the cell's own camera may lag
+    assert spoofed == {k: n for k, n in state0["rejections"].items() if k != "clouds/front"}, (
+        "a spoofed joint state or cloud reached the service"
+    )
     assert np.abs(np.array(state["position"]) - q_now).max() < 1e-6
     assert state["state"] == "WAITING" and state["goal_id"] == state0["goal_id"]
     # the same messages from the right identities do arrive: the rules, not the network, stopped them
@@ -244,6 +248,56 @@ def test_only_the_cells_identities_play_their_parts(cell):
     time.sleep(1.0)
     svc.put(keys.trajectory, _trajectory(names, cell.rec.latest()[1], time.time()))
     _wait(lambda: abs(cell.rec.latest()[1][0] - q_now[0]) > 0.1, 5, "the robot to follow the service's identity")
+    # where the rules were enforced, what was refused is logged and counted: by the router, or by each peer
+    refused = cell.client.state()["access_refused"]
+    print("the service refused:", refused)
+    if cell.via_router:
+        router = cell.procs[0]
+        assert router.name == "router"
+        _wait(lambda: f"refused: Put from operator on {keys.trajectory}" in router.tail(400), 5, "the router's log")
+        assert f"refused: Put from camera on {keys.joint_states}" in router.tail(400)
+        router.stop()
+        assert "the router refused" in router.tail(5), router.tail(5)
+    else:
+        assert any(k.endswith(f"Put (ingress) on {keys.joint_states}") for k in refused), refused
+        robot = next(p for p in cell.procs if p.name == "robot")
+        _wait(lambda: f"on {keys.trajectory} (ingress" in robot.tail(400), 5, "the robot's log of what it refused")
+        robot.stop()
+        assert "refused" in robot.tail(5) and "by access control" in robot.tail(5), robot.tail(5)
+
+
+_Z = "zenoh::net::routing::interceptor::access_control"
+_ROBOT, _OP = "4770b799d937b5eb311631d2a3f19967", "c06924706957d35706e0981da6a15c36"
+
+
+def _line(thread: int, body: str) -> str:
+    return f"2026-11-29T18:09:23.305093Z TRACE rx-0 ThreadId({thread:02d}) {_Z}: {body}\n"
+
+
+def test_refusals_count_messages_refused_not_the_verdicts_zenoh_caches():
+    """Lines as Zenoh 1.x writes them (taken from a router's log): a caching block states a verdict for each of 9
+    actions on a key (computed, nothing refused yet); what follows it, or a cached result, is a message refused."""
+    r = Refusals()
+    key = "replanner/@v1/panda/trajectory"
+    via = f"{_ROBOT} on Interface(lo)+CertCommonName(robot)+Transport(Tls)+{_ROBOT}"
+    block = [_line(8, f"ACL (ingress): caching permissions for `{key}` ...")]
+    for what in ("Query", "Reply", "Put", "Delete", "Declare/Undeclare Subscriber", "Declare/Undeclare Queryable"):
+        block.append(_line(8, f"{via} is unauthorized to {what} (ingress) on {key}"))
+    block.insert(3, _line(9, "ACL (egress): caching permissions for `other` ..."))  # another thread's block
+    for what in ("Declare/Undeclare Liveliness Token", "Liveliness Query", "Declare Liveliness Subscriber"):
+        block.append(_line(8, f"{via} is unauthorized to {what} (ingress) on {key}"))
+    assert all(r.feed(x) for x in block)
+    assert r.total == 0 and r.table() == {}
+    op = f"{_OP} on Interface(lo)+CertCommonName(operator)+Transport(Tls)+{_OP}"
+    r.feed(_line(8, f"{op} is unauthorized to Put (ingress) on {key}"))
+    r.feed(_line(8, f"{op} is authorized to Put (ingress) on replanner/@v1/panda/goal"))
+    r.feed(_line(10, f"Using cached result: {_OP} is unauthorized to Put (ingress) on {key}"))
+    r.feed(_line(10, f"Using cached result: {_ROBOT} is unauthorized to Query (ingress) on x"))
+    assert r.table() == {f"operator: Put (ingress) on {key}": 2, "robot: Query (ingress) on x": 1}
+    assert r.total == 3
+    r.feed(f"\x1b[2m2026\x1b[0m  INFO acc-0 ThreadId(05) {_Z}: e00da70d did not match any configured ACL subject.")
+    assert r.no_role == {"e00da70d": 1}
+    assert not r.feed("replanner: kinematic panda on replanner/@v1/panda (Ctrl-C stops)\n")  # passed on
 
 
 def test_certs_command_and_bad_identities(tmp_path):

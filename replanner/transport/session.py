@@ -103,6 +103,7 @@ def node_session(endpoint: str) -> zenoh.Session:
 
 
 def open_session(conf: zenoh.Config) -> zenoh.Session:
+    zenoh.try_init_log_from_env()  # RUST_LOG=... shows Zenoh's own log (stdout); without it Zenoh stays silent
     try:
         return zenoh.open(conf)
     except Exception as err:
