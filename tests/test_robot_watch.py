@@ -137,6 +137,7 @@ def test_a_controller_stuck_in_one_step_silences_the_heartbeat_and_the_robot_bra
 
     from replanner_services.serve import Service
 
+    from replanner.control import Input
     from replanner.transport.session import make_config, open_session
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -160,8 +161,7 @@ def test_a_controller_stuck_in_one_step_silences_the_heartbeat_and_the_robot_bra
         client.send_goal(FAR, velocity_scale=0.15)
         _wait(lambda: client.state()["state"] == "MONITORING", 20, "the motion")
         _wait(lambda: np.abs(rec.latest()[2]).max() > 0.05, 10, "the arm at speed")
-        tick = service.controller.inbox._tick
-        service.controller.inbox._tick = lambda: release.wait(30) and tick()  # the next step hangs until released
+        service.controller.inbox.put(Input.CALL, lambda: release.wait(30))  # the next step hangs until released
         held = time.time()
         _wait(lambda: np.abs(rec.latest()[2]).max() < 1e-9, 20, "the robot to stand", SimpleNamespace(logs=proc.tail))
         stamps = np.array([s for s, _, _ in rec.js])
@@ -175,7 +175,6 @@ def test_a_controller_stuck_in_one_step_silences_the_heartbeat_and_the_robot_bra
         assert service.controller.inbox.stuck_for() > 0.5
         print(f"braking began {slowing[0] - held:.3f} s after the controller hung")
         release.set()
-        service.controller.inbox._tick = tick
         _wait(lambda: service.controller.inbox.stuck_for() == 0.0, 10, "the controller to step again")
         heard = []
         sub = session.declare_subscriber(client.keys.status, lambda s: heard.append(s))

@@ -211,6 +211,8 @@ class Controller(Holding):
                 self.canceled(reason="canceled by the client")
         elif kind is Input.ANSWER:
             self._on_answer(data)
+        elif kind is Input.CALL:
+            data()
 
     # ------------------------------------------------------------------ goals
     def _accept(self, handle: GoalHandle) -> np.ndarray | None:

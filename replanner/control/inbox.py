@@ -18,6 +18,7 @@ class Input(Enum):
     GOAL = "goal"
     CANCEL = "cancel"
     ANSWER = "answer"
+    CALL = "call"  # data(): run in the controller's thread, between its other inputs (tools, fault tests)
     STOP = "stop"
 
 
