@@ -44,7 +44,7 @@ class Moves:
         self.lead = max(lead, latency)  # a motion from rest: no hurry, and it must reach the robot before it starts
         self.log_event = log_event
         self.sent = 0  # trajectories sent so far (the latency account times decision -> command)
-        self._splice: tuple[float, object] | None = None  # (land, trajectory) of the last splice sent
+        self._splice: object | None = None  # the last splice sent (a slow-down before it lands slows it instead)
 
     def send(self, traj: Trajectory, start: float) -> None:
         """Run `traj` from `start` [clock s] on, replacing what would run from then."""
@@ -58,7 +58,7 @@ class Moves:
         start = self.clock() + self.lead if land is None else land
         self.send(traj, start)
         if land is not None:
-            self._splice = (start, traj)
+            self._splice = traj
         return start
 
     def resync(self, q, now: float):
@@ -117,9 +117,9 @@ class Moves:
         return stop
 
     def _pending_splice(self) -> tuple[float, Trajectory] | None:
-        """(land, trajectory) of a splice sent and still to start within SPLICE_DEFER [s]; None otherwise."""
+        """(land, trajectory) of the last splice sent if it is all that is still to start, within SPLICE_DEFER [s]."""
         later = self.timeline.later(self.clock() + self.latency)
-        if len(later) != 1 or self._splice is None or later[0][1] is not self._splice[1]:
+        if len(later) != 1 or later[0][1] is not self._splice or not isinstance(self._splice, Trajectory):
             return None
         land, traj = later[0]
         return (land, traj) if land - self.clock() - self.latency <= SPLICE_DEFER else None
@@ -130,7 +130,7 @@ class Moves:
         run = self._running()
         if factor > 1.0 or run is None:
             return
-        if (pending := self._pending_splice()) is not None and isinstance(pending[1], Trajectory):
+        if (pending := self._pending_splice()) is not None:
             land, spliced = pending
             try:
                 slow = self.gen.slow_down(spliced, 0.0, factor)
@@ -138,7 +138,7 @@ class Moves:
                 log.warning("cannot slow the splice down: %s", err)
             else:
                 self.send(slow, land)
-                self._splice = (land, slow)
+                self._splice = slow
                 return
         start, traj, t = run
         try:
@@ -180,7 +180,7 @@ class Moves:
                 continue
             new.nominal = traj.nominal  # a slowed motion stays slowed: the next speed-up goes back to the goal's limits
             self.send(new, start + t)
-            self._splice = (start + t, new)
+            self._splice = new
             return True
         return False
 

@@ -20,21 +20,10 @@ import numpy as np
 
 from ..sections import ReflexConfig
 from ..trajectory import Trajectory, progress_along
-from ..world.occupancy import voxel_centers, voxel_keys
+from ..world.occupancy import unique_keys, voxel_centers, voxel_keys
 from ..world.robot import RobotModel
 from .forces import ForceField, VertexModel
 from .kernels import AvoidanceKernels, KernelSpec, OccupancyGrid
-
-
-def _unique_keys(keys: np.ndarray) -> np.ndarray:
-    """The distinct rows of integer keys (N, 3), as flat indices (np.unique on rows is several times slower)."""
-    lo = keys.min(axis=0)
-    k = keys - lo
-    n = k.max(axis=0) + 1
-    flat = np.unique((k[:, 0] * n[1] + k[:, 1]) * n[2] + k[:, 2])
-    i, rest = np.divmod(flat, n[1] * n[2])
-    j, m = np.divmod(rest, n[2])
-    return np.stack([i, j, m], axis=1) + lo
 
 
 class Reflex:
@@ -87,7 +76,7 @@ class Reflex:
             return np.zeros((K, n))
         if c.method == "forces":
             if c.voxel > resolution:  # a direction needs no fine map: merged voxels, far fewer pairs
-                near = voxel_centers(_unique_keys(voxel_keys(near, c.voxel)), c.voxel)
+                near = voxel_centers(unique_keys(voxel_keys(near, c.voxel)), c.voxel)
             link = (np.arange(K)[:, None] * L + self.model.link[None]).ravel()
             W = self.field.compute(V.reshape(-1, 3), link, origins.reshape(-1, 3), near).reshape(K, L, 6)
             tau = np.einsum("klsd,kls->kd", Js, W)  # sum_n J_n^T [f_n; m_n]

@@ -65,7 +65,7 @@ class Refusals:
         if (m := _NO_ROLE.search(body)) is not None:
             with self._lock:
                 first = m["zid"] not in self.no_role
-                if first or len(self.no_role) < MAX_KINDS:
+                if not first or len(self.no_role) < MAX_KINDS:
                     self.no_role[m["zid"]] += 1
             if first:
                 log.warning("refused: session %s matches no access rule (every message of it is denied)", m["zid"])
