@@ -8,8 +8,9 @@ import pybullet as pb
 from replanner.bench.scenes import add_table, clutter_map
 from replanner.world.collision import CollisionChecker
 from replanner.world.geometry import Box, Cylinder, Sphere, sample_surface
+from replanner.world.layered import FastChecker
 from replanner.world.scene import World
-from replanner.world.sphere_layer import CONTACT, FREE, FastChecker
+from replanner.world.sphere_layer import CONTACT, FREE
 from replanner.world.spheres import cover
 from replanner.world.transforms import make_transform
 from tests.oracle import HULL_MARGIN, PyBulletOracle

@@ -10,9 +10,11 @@ import numpy as np
 from ..config import ReplannerConfig
 from ..stats import summary
 from ..world.collision import CollisionChecker
+from ..world.convex_pass import decide_batch
+from ..world.layered import FastChecker
 from ..world.robot import RobotModel
 from ..world.scene import World
-from ..world.sphere_layer import CONTACT, FREE, UNSURE, FastChecker
+from ..world.sphere_layer import CONTACT, FREE, UNSURE
 from .scenes import add_table, clutter_map
 
 
@@ -111,12 +113,12 @@ def run(
 def _layer_rates(checker: CollisionChecker, Qs: list[np.ndarray], chunk: int) -> dict:
     """The planning layer (sphere_layer) on the same configurations: its own verdicts (free / contact for certain,
     or unsure) per second, forward kinematics included: whole runs on one core and on all, `chunk` at a time, and
-    its verdicts with FCL deciding the unsure ones (`verdicts_unlike_fcl` counts those unlike FCL's, and the
-    parallel kernel's unlike the serial one's: 0)."""
+    its verdicts with the convex pass and FCL deciding the unsure ones (`verdicts_unlike_fcl` counts those unlike
+    FCL's, and the parallel kernel's unlike the serial one's: 0)."""
     fast = FastChecker(checker)
     robot = checker.robot
-    layer, vol = fast.layer()
-    whole, par, chunked, with_fcl, shares, disagree = [], [], [], [], [], 0
+    layer, vol, convex = fast.passes()
+    whole, par, chunked, with_fcl, shares, disagree, left = [], [], [], [], [], 0, []
     for r, Q in enumerate(Qs):
         t0 = time.perf_counter()
         verdict = layer.classify(Q, robot.frames(Q), vol)
@@ -134,6 +136,8 @@ def _layer_rates(checker: CollisionChecker, Qs: list[np.ndarray], chunk: int) ->
             chunked.append(len(Q) / (t2 - t1))
             with_fcl.append(len(Q) / (t3 - t2))
             shares.append([float((verdict == k).mean()) for k in (FREE, CONTACT, UNSURE)])
+            unsure = np.flatnonzero(verdict == UNSURE)
+            left.append(float((decide_batch(convex, layer, robot.frames(Q), unsure, vol) == UNSURE).sum() / len(Q)))
             disagree += int((valid != checker.is_valid_batch(Q)).sum())
     share = np.mean(shares, axis=0)
     return {
@@ -150,6 +154,7 @@ def _layer_rates(checker: CollisionChecker, Qs: list[np.ndarray], chunk: int) ->
         "with_fcl_checks_per_s_median": float(np.median(with_fcl)),
         "free_for_certain": float(share[0]),
         "contact_for_certain": float(share[1]),
-        "unsure_to_fcl": float(share[2]),
+        "unsure_after_spheres": float(share[2]),
+        "unsure_to_fcl": float(np.mean(left)),  # what neither the spheres nor the convex pass decide
         "verdicts_unlike_fcl": disagree,
     }

@@ -22,8 +22,8 @@ from ompl import util as ou
 
 from ..errors import InvalidInputError
 from ..world.collision import CollisionChecker, Contact, ContactKind
+from ..world.layered import FastChecker
 from ..world.paddings import Paddings
-from ..world.sphere_layer import FastChecker
 from ..world.transforms import make_transform
 from .ik import IKError, solve_ik
 from .types import (
@@ -208,7 +208,7 @@ class Planner:
         self.si.setup()
         _LIVE.add(self)
         if self.layer == "spheres":  # compile and build the layer now, not inside the first plan's deadline
-            self.checker.path_valid(np.array([self.robot.home, self.robot.home]))
+            self.checker.warm()
 
     @classmethod
     def from_config(cls, checker: CollisionChecker, cfg, seed: int | None = None) -> Planner:

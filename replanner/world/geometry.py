@@ -105,7 +105,7 @@ def _check_positive(name: str, values, n: int) -> None:
 
 
 @lru_cache(maxsize=1)
-def _padding_directions() -> np.ndarray:
+def padding_directions() -> np.ndarray:
     """Vertices of a polytope that contains the unit sphere (icosphere scaled by 1/inradius)."""
     ico = trimesh.creation.icosphere(subdivisions=1, radius=1.0)
     centers = ico.triangles.mean(axis=1)
@@ -125,7 +125,7 @@ def padded(shape: Shape, padding: float) -> Shape:
     if isinstance(shape, Cylinder):
         return Cylinder(radius=shape.radius + padding, length=shape.length + 2 * padding)
     if isinstance(shape, ConvexHull) or (isinstance(shape, Mesh) and shape.convex):
-        pts = (shape.vertices[:, None, :] + padding * _padding_directions()[None]).reshape(-1, 3)
+        pts = (shape.vertices[:, None, :] + padding * padding_directions()[None]).reshape(-1, 3)
         return ConvexHull.of_points(pts)
     # a concave mesh is padded through its convex hull: conservative, never optimistic
     return padded(ConvexHull.of_points(shape.vertices), padding)

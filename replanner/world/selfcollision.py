@@ -17,6 +17,7 @@ import os
 from pathlib import Path
 
 import fcl
+import numba
 import numpy as np
 
 from .geometry import bounding_radius, padded, to_fcl
@@ -86,7 +87,16 @@ class SelfClearanceTables:
         eye = np.eye(P)
         self._W = np.vstack([eye * n1, eye]).astype(np.int64)  # flat index = i0 * n1 + i1
         self._R = np.vstack([eye * (r0 * self.step0), eye * (r1 * self.step1)])  # slack per grid unit
+        # the same per pair, packed for compiled callers (may_collide_row)
+        self.packed_i = np.ascontiguousarray(np.stack([j0, j1, n0, n1, self.offset], axis=1).reshape(P, 5), np.int64)
+        self.packed_f = np.ascontiguousarray(
+            np.stack([self.lo0, self.lo1, self.step0, self.step1, r0 * self.step0, r1 * self.step1], axis=1).reshape(
+                P, 6
+            )
+        )
         for arr in (
+            self.packed_i,
+            self.packed_f,
             self._J,
             self._LO,
             self._STEP,
@@ -198,3 +208,18 @@ class SelfClearanceTables:
         idx = i.astype(np.int64) @ self._W + self.offset
         slack = np.abs(u - i) @ self._R if P else np.zeros((len(Q), 0))
         return self.table[idx] <= slack
+
+
+@numba.njit(cache=True, nogil=True)
+def may_collide_row(q, packed_i, packed_f, table) -> bool:
+    """True when any tabulated pair may be in contact at configuration q (dof,): `may_collide` for one row."""
+    for p in range(packed_i.shape[0]):
+        j0, j1, n0, n1, off = packed_i[p, 0], packed_i[p, 1], packed_i[p, 2], packed_i[p, 3], packed_i[p, 4]
+        u0 = (q[j0] - packed_f[p, 0]) / packed_f[p, 2]
+        u1 = (q[j1] - packed_f[p, 1]) / packed_f[p, 3]
+        i0 = min(max(np.rint(u0), 0.0), n0 - 1.0)
+        i1 = min(max(np.rint(u1), 0.0), n1 - 1.0)
+        slack = abs(u0 - i0) * packed_f[p, 4] + abs(u1 - i1) * packed_f[p, 5]
+        if table[np.int64(i0) * n1 + np.int64(i1) + off] <= slack:
+            return True
+    return False

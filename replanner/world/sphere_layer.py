@@ -3,28 +3,38 @@ its bodies, static objects as primitives (boxes, spheres, cylinders exactly; oth
 the occupancy map as a summed-volume table of its voxels. `clear` says which configurations are free for certain;
 FCL decides the rest, so every verdict stays FCL's and only the near misses pay for it.
 
-Every test is conservative: a sphere grown by its padding over the inradius of FCL's padded polytope, a voxel
+Every test is conservative: a sphere grown by as far as FCL's padded shape reaches (a polytope's inradius factor,
+√3 paddings at a padded box's corners), a voxel
 counted when it touches the sphere's bounding box, self pairs compared sphere to sphere.
 """
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
 from .collision_scene import CollisionScene
-from .geometry import Box, Cylinder, Sphere, _padding_directions
+from .geometry import Box, Cylinder, Sphere, padding_directions
 from .occupancy import OccupancyMap
 from .scene import WorldSnapshot
+from .selfcollision import may_collide_row
 from .spheres import cover
 
 BOX, BALL, CYLINDER = 0, 1, 2
 CONTACT, UNSURE, FREE = -1, 0, 1  # what `SphereScene.classify` says of a configuration
 
 
+def _grow_factor(shape, polytope: float) -> float:
+    """A padded shape reaches this many paddings beyond the shape at most: boxes grow at their corners."""
+    return math.sqrt(3.0) if isinstance(shape, Box) else math.sqrt(2.0) if isinstance(shape, Cylinder) else (
+        1.0 if isinstance(shape, Sphere) else polytope)  # fmt: skip
+
+
 def _inradius_factor() -> float:
     """FCL's padded polytopes reach this many paddings from the body at most (see geometry.padded)."""
-    return float(np.linalg.norm(_padding_directions(), axis=1).max())
+    return float(np.linalg.norm(padding_directions(), axis=1).max())
 
 
 class SphereScene:
@@ -59,13 +69,17 @@ class SphereScene:
         self.local = np.ascontiguousarray(np.concatenate(local))
         self.radius = np.concatenate(rad)
         self.body = np.array(body, dtype=np.int64)
-        self.env_grow, self.map_grow = padding * grow, map_padding * grow
-        self.self_grow = 2.0 * robot.self_body_padding * grow
+        self.padding = float(padding)
+        self.env_pad, self.map_pad, self.self_pad = float(padding), float(map_padding), float(robot.self_body_padding)
+        # how far a padding p takes each padded body beyond its shape, per p (geometry.padded)
+        self.gf = np.array([_grow_factor(b.raw_shape, grow) for b in scene.bodies])
         # self pairs of bodies; a body's spheres are first[b]:first[b + 1], inside a ball (slot, centre, radius)
         self.first = np.array(first, dtype=np.int64)
         # pairs that are always close (link 5 and 7) have clearance tables; the spheres take the others
         self.pair_a, self.pair_b = scene.box_a.astype(np.int64), scene.box_b.astype(np.int64)
-        self.tables = scene.tables
+        t = scene.tables
+        self.tab_i, self.tab_f = t.packed_i, t.packed_f
+        self.tab = t.table if len(t.table) else np.zeros(1)
         ball_c, ball_r, ball_slot = [], [], []
         for bi in range(len(scene.bodies)):
             c, r = self.local[first[bi] : first[bi + 1]], self.radius[first[bi] : first[bi + 1]]
@@ -124,89 +138,21 @@ class SphereScene:
         F = np.ascontiguousarray(frames)
         common = (
             self.local, self.radius, self.first, self.in_local, self.in_rad, self.in_first, self.ball_slot,
-            self.ball_c, self.ball_r, self.env_grow, self.map_grow, self.self_grow, self.env_mask, self.ob_kind,
+            self.ball_c, self.ball_r, self.gf, self.env_pad, self.map_pad, self.self_pad, self.env_mask, self.ob_kind,
             self.ob_inv, self.ob_dim, self.ob_id, self.ob_exact, self.octree_mask, vol.sat, vol.key_min, vol.inv_res,
             self.pair_a, self.pair_b, out,
         )  # fmt: skip
+        rows = (np.ascontiguousarray(Q, dtype=np.float64), self.tab_i, self.tab_f, self.tab)
         if parallel and order is None and not stop:
-            _classify_parallel(F, *common)
+            _classify_parallel(F, *rows, *common)
         else:
             order = np.arange(len(F), dtype=np.int64) if order is None else np.asarray(order, dtype=np.int64)
-            _classify(F, order, stop, *common)
-        if stop and (out == CONTACT).any():
-            return out
-        if len(self.tables):  # the always-close pairs: their tables may only say "maybe"
-            free = np.flatnonzero(out == FREE)
-            out[free[self.tables.may_collide(Q[free]).any(axis=1)]] = UNSURE
+            _classify(F, *rows, order, stop, *common)
         return out
 
     def clear(self, Q: np.ndarray, frames: np.ndarray, volume: VoxelVolume | None) -> np.ndarray:
         """Which configurations are free for certain (bool (N,)); False: in contact or ask FCL."""
         return self.classify(Q, frames, volume) == FREE
-
-
-class FastChecker:
-    """A collision checker's verdicts, fast: the sphere layer answers the configurations it finds free for certain,
-    `checker` (FCL) the rest; the verdicts are the checker's (the layer is conservative: tests/test_sphere_layer.py).
-
-    Args:
-        checker: the exact checker; its world's edits and map updates are followed.
-    """
-
-    def __init__(self, checker):
-        self.checker = checker
-        self._cache: tuple | None = None  # (world version, map, SphereScene, VoxelVolume)
-
-    def layer(self) -> tuple[SphereScene, VoxelVolume]:
-        """The sphere layer and the map's voxel volume of the world as it is now (built once per version)."""
-        snap, scene, _, _ = self.checker._current()
-        c = self._cache
-        if c is None or c[0] is not snap.version or c[1] is not snap.occupancy:
-            if c is None or c[0] != snap.version:
-                layer = SphereScene(self.checker.robot, scene, snap, self.checker.padding, self.checker.map_padding)
-            else:
-                layer = c[2]
-            vol = VoxelVolume.of(snap.occupancy) if c is None or c[1] is not snap.occupancy else c[3]
-            c = self._cache = (snap.version, snap.occupancy, layer, vol)
-        return c[2], c[3]
-
-    def is_valid_batch(self, Q) -> np.ndarray:
-        """Validity (N,) of configurations Q (N, dof), as `checker.is_valid_batch` says."""
-        robot = self.checker.robot
-        Q = robot.check_q(Q)
-        layer, vol = self.layer()
-        verdict = layer.classify(Q, robot.frames(Q), vol)
-        out = verdict == FREE
-        if self.checker.check_limits:
-            out &= robot.limits.within(Q)
-        rest = np.flatnonzero(verdict == UNSURE)
-        if len(rest):
-            out[rest] = self.checker.is_valid_batch(Q[rest])
-        return out
-
-    def is_valid(self, q) -> bool:
-        return bool(self.is_valid_batch(np.asarray(q, dtype=float)[None])[0])
-
-    def path_valid(self, waypoints, resolution: float | None = None) -> bool:
-        """As `checker.path_valid`: every 8th interpolated configuration first (a contact is usually found early);
-        the sphere layer's certain answers stand, FCL decides the unsure ones."""
-        robot = self.checker.robot
-        Q, _ = self.checker.interpolate(waypoints, resolution)
-        if self.checker.check_limits and not robot.limits.within(Q).all():
-            return False
-        layer, vol = self.layer()
-        order = np.concatenate([np.arange(0, len(Q), 8), np.delete(np.arange(len(Q)), np.s_[::8])])
-        verdict = layer.classify(Q, robot.frames(Q), vol, order, stop=True)
-        if (verdict == CONTACT).any():
-            return False
-        rest = order[verdict[order] == UNSURE]
-        for i in range(0, len(rest), 256):
-            if not self.checker._first_invalid(Q[rest[i : i + 256]], True)[0].all():
-                return False
-        return True
-
-    def __getattr__(self, name):  # everything else (interpolate, padding, check, ...) is the checker's
-        return getattr(self.checker, name)
 
 
 class VoxelVolume:
@@ -297,8 +243,8 @@ def _place(F, P, first, last, out):
 
 @numba.njit(cache=True, nogil=True)
 def _one(
-    n, frames, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
-    env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+    n, frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
+    gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
     octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
 ):  # fmt: skip
     """The verdict on configuration n: 1 free for certain, -1 in contact for certain, 0 unsure (C, IC, BC, near,
@@ -311,7 +257,8 @@ def _one(
     for b in range(B):
         x, y, z = BC[b, 0], BC[b, 1], BC[b, 2]
         m = 0  # the obstacles this body's ball meets: only they are tested sphere by sphere
-        reach = ball_r[b] + env_grow
+        eg, mg = env_pad * gf[b], map_pad * gf[b]
+        reach = ball_r[b] + eg
         for o in range(O):
             if env_mask[b, ob_id[o]] and _distance(ob_inv[o], ob_kind[o], ob_dim[o], x, y, z) <= reach:
                 near[m] = o
@@ -324,7 +271,7 @@ def _one(
         for s in range(first[b], first[b + 1]):
             for i in range(m):
                 o = near[i]
-                if _distance(ob_inv[o], ob_kind[o], ob_dim[o], C[s, 0], C[s, 1], C[s, 2]) <= rad[s] + env_grow:
+                if _distance(ob_inv[o], ob_kind[o], ob_dim[o], C[s, 0], C[s, 1], C[s, 2]) <= rad[s] + eg:
                     hit = True
                     break
             if hit:
@@ -344,14 +291,14 @@ def _one(
             if verdict == -1:
                 break
         if verdict == 1 and octree_mask[b]:
-            g = ball_r[b] + map_grow
+            g = ball_r[b] + mg
             if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
                 if not placed[b]:
                     _place(frames[n, ball_slot[b]], local, first[b], first[b + 1], C)
                     _place(frames[n, ball_slot[b]], in_local, in_first[b], in_first[b + 1], IC)
                     placed[b] = True
                 for s in range(first[b], first[b + 1]):
-                    g = rad[s] + map_grow
+                    g = rad[s] + mg
                     cx, cy, cz = C[s, 0], C[s, 1], C[s, 2]
                     if _voxels_in(sat, key_min, inv_res, cx - g, cy - g, cz - g, cx + g, cy + g, cz + g) > 0:
                         verdict = 0
@@ -360,7 +307,8 @@ def _one(
         for p in range(pair_a.shape[0]):
             ba, bb = pair_a[p], pair_b[p]
             d0, d1, d2 = BC[ba, 0] - BC[bb, 0], BC[ba, 1] - BC[bb, 1], BC[ba, 2] - BC[bb, 2]
-            reach = ball_r[ba] + ball_r[bb] + self_grow
+            sg = self_pad * (gf[ba] + gf[bb])
+            reach = ball_r[ba] + ball_r[bb] + sg
             if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach:
                 continue  # the two bodies' balls are apart
             for bo in (ba, bb):
@@ -369,14 +317,14 @@ def _one(
                     _place(frames[n, ball_slot[bo]], in_local, in_first[bo], in_first[bo + 1], IC)
                     placed[bo] = True
             hit = False
-            bx, by, bz, br = BC[bb, 0], BC[bb, 1], BC[bb, 2], ball_r[bb] + self_grow
+            bx, by, bz, br = BC[bb, 0], BC[bb, 1], BC[bb, 2], ball_r[bb] + sg
             for a in range(first[ba], first[ba + 1]):
                 d0, d1, d2 = C[a, 0] - bx, C[a, 1] - by, C[a, 2] - bz
                 if d0 * d0 + d1 * d1 + d2 * d2 > (rad[a] + br) ** 2:
                     continue  # this sphere is apart from the other body's ball
                 for c in range(first[bb], first[bb + 1]):
                     d0, d1, d2 = C[a, 0] - C[c, 0], C[a, 1] - C[c, 1], C[a, 2] - C[c, 2]
-                    reach = rad[a] + rad[c] + self_grow
+                    reach = rad[a] + rad[c] + sg
                     if d0 * d0 + d1 * d1 + d2 * d2 <= reach * reach:
                         hit = True
                         break
@@ -396,13 +344,15 @@ def _one(
                     break
             if verdict == -1:
                 break
+    if verdict == 1 and tab_i.shape[0] and may_collide_row(Q[n], tab_i, tab_f, table):
+        verdict = 0  # the always-close pairs: their tables may only say "maybe"
     return verdict
 
 
 @numba.njit(cache=True, nogil=True)
 def _classify(
-    frames, order, stop, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
-    env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+    frames, Q, tab_i, tab_f, table, order, stop, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c,
+    ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
     octree_mask, sat, key_min, inv_res, pair_a, pair_b, out,
 ):  # fmt: skip
     C, IC = np.empty((local.shape[0], 3)), np.empty((in_local.shape[0], 3))
@@ -410,8 +360,8 @@ def _classify(
     placed = np.zeros(ball_slot.shape[0], np.bool_)  # a body's spheres are placed only when its ball meets something
     for n in order:
         v = _one(
-            n, frames, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
-            env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+            n, frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
+            gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
             octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
         )  # fmt: skip
         out[n] = v
@@ -421,8 +371,8 @@ def _classify(
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _classify_parallel(
-    frames, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
-    env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+    frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
+    gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
     octree_mask, sat, key_min, inv_res, pair_a, pair_b, out,
 ):  # fmt: skip
     N, chunk = frames.shape[0], 256
@@ -432,7 +382,7 @@ def _classify_parallel(
         placed = np.zeros(ball_slot.shape[0], np.bool_)
         for n in range(c * chunk, min(N, (c + 1) * chunk)):
             out[n] = _one(
-                n, frames, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
-                env_grow, map_grow, self_grow, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+                n, frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c,
+                ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
                 octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
             )  # fmt: skip

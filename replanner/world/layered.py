@@ -1,0 +1,141 @@
+"""The planning layer in front of FCL: spheres first (world/sphere_layer.py), then the convex shapes FCL is given,
+compiled (world/convex_pass.py), and FCL for what neither can decide. The verdicts are FCL's."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .convex_pass import ConvexPass, decide_batch
+from .motion_pass import motion_verdicts
+from .sphere_layer import CONTACT, FREE, UNSURE, SphereScene, VoxelVolume
+
+
+class FastChecker:
+    """A collision checker's verdicts, fast: the sphere layer answers the configurations it finds free or in contact
+    for certain, the convex pass most of the rest, `checker` (FCL) what is left; the verdicts are the checker's
+    (tests/test_sphere_layer.py).
+
+    Args:
+        checker: the exact checker; its world's edits and map updates are followed.
+        convex: run the convex pass (False: spheres, then FCL, as before the pass existed).
+    """
+
+    def __init__(self, checker, convex: bool = True):
+        self.checker = checker
+        self.convex = convex
+        self._cache: tuple | None = None  # (world version, map, SphereScene, VoxelVolume, ConvexPass, reach)
+        lim = checker.robot.limits
+        self._lo, self._hi = lim.lower - 1e-9, lim.upper + 1e-9
+
+    def layer(self) -> tuple[SphereScene, VoxelVolume]:
+        """The sphere layer and the map's voxel volume of the world as it is now (built once per version)."""
+        c = self._layers()
+        return c[2], c[3]
+
+    def warm(self) -> None:
+        """Compile (or load) every pass now, not inside the first plan's deadline."""
+        c = self._layers()
+        q = self.checker.robot.home[None]
+        decide_batch(c[4], c[2], self.checker.robot.frames(q), np.zeros(1, np.int64), c[3])
+        self.path_valid(np.vstack([q, q]))
+
+    def passes(self) -> tuple[SphereScene, VoxelVolume, ConvexPass]:
+        """The sphere layer, the map's voxel volume and the convex pass of the world as it is now."""
+        c = self._layers()
+        return c[2], c[3], c[4]
+
+    def _layers(self) -> tuple:
+        snap, scene, _, _ = self.checker._current()
+        c = self._cache
+        if c is None or c[0] is not snap.version or c[1] is not snap.occupancy:
+            if c is None or c[0] != snap.version:
+                robot = self.checker.robot
+                layer = SphereScene(robot, scene, snap, self.checker.padding, self.checker.map_padding)
+                convex = ConvexPass(robot, scene, layer)
+            else:
+                layer, convex = c[2], c[4]
+            vol = VoxelVolume.of(snap.occupancy) if c is None or c[1] is not snap.occupancy else c[3]
+            c = self._cache = (snap.version, snap.occupancy, layer, vol, convex, scene.reach)
+        return c
+
+    def _rows(self, Q) -> np.ndarray:
+        Q = np.asarray(Q, dtype=np.float64)
+        if Q.ndim != 2 or Q.shape[1] != len(self._lo) or not np.isfinite(Q).all():
+            Q = self.checker.robot.check_q(Q)  # raises with the reason
+        return Q
+
+    def _second(self, c, Q, frames, verdict, which: np.ndarray) -> None:
+        """The convex pass on configurations `which` (unsure after the spheres), in place."""
+        if self.convex and len(which):
+            verdict[which] = decide_batch(c[4], c[2], frames, which, c[3])
+
+    def is_valid_batch(self, Q) -> np.ndarray:
+        """Validity (N,) of configurations Q (N, dof), as `checker.is_valid_batch` says."""
+        Q = self._rows(Q)
+        c = self._layers()
+        frames = self.checker.robot.frames(Q)
+        verdict = c[2].classify(Q, frames, c[3])
+        self._second(c, Q, frames, verdict, np.flatnonzero(verdict == UNSURE))
+        out = verdict == FREE
+        if self.checker.check_limits:
+            out &= ((Q >= self._lo) & (Q <= self._hi)).all(axis=1)
+        rest = np.flatnonzero(verdict == UNSURE)
+        if len(rest):
+            out[rest] = self.checker.is_valid_batch(Q[rest])
+        return out
+
+    def is_valid(self, q) -> bool:
+        return bool(self.is_valid_batch(np.asarray(q, dtype=float)[None])[0])
+
+    def path_valid(self, waypoints, resolution: float | None = None) -> bool:
+        """As `checker.path_valid`: every 8th interpolated configuration first (a contact is usually found early);
+        certain answers stand, FCL decides the unsure ones."""
+        robot = self.checker.robot
+        W = self._rows(waypoints)
+        if len(W) == 2:
+            return self._motion_valid(W[0], W[1], resolution)
+        Q, _ = self.checker.interpolate(W, resolution)
+        if self.checker.check_limits and not ((Q >= self._lo) & (Q <= self._hi)).all():
+            return False
+        c = self._layers()
+        frames = robot.frames(Q)
+        order = np.concatenate([np.arange(0, len(Q), 8), np.delete(np.arange(len(Q)), np.s_[::8])])
+        verdict = c[2].classify(Q, frames, c[3], order, stop=True)
+        if (verdict == CONTACT).any():
+            return False
+        rest = order[verdict[order] == UNSURE]
+        self._second(c, Q, frames, verdict, rest)
+        if (verdict == CONTACT).any():
+            return False
+        rest = rest[verdict[rest] == UNSURE]
+        for i in range(0, len(rest), 256):
+            if not self.checker._first_invalid(Q[rest[i : i + 256]], True)[0].all():
+                return False
+        return True
+
+    def _motion_valid(self, a: np.ndarray, b: np.ndarray, resolution: float | None) -> bool:
+        """One straight motion: the spheres in one compiled call, then the convex pass and FCL on what is left."""
+        if (
+            self.checker.check_limits
+            and not ((a >= self._lo) & (a <= self._hi) & (b >= self._lo) & (b <= self._hi)).all()
+        ):
+            return False
+        c = self._layers()
+        res = self.checker.path_resolution if resolution is None else float(resolution)
+        steps = max(1, int(np.ceil(np.abs(b - a) @ c[5] / res)))
+        v, unsure = motion_verdicts(self.checker.robot, c[2], c[3], a, b, steps)
+        if v < 0:
+            return False
+        if not len(unsure):
+            return True
+        Q = a + (unsure / steps)[:, None] * (b - a)
+        Q[unsure == steps] = b
+        verdict = np.zeros(len(Q), np.int8)
+        self._second(c, Q, self.checker.robot.frames(Q), verdict, np.arange(len(Q)))
+        if (verdict == CONTACT).any():
+            return False
+        rest = Q[verdict == UNSURE]
+        return not len(rest) or bool(self.checker._first_invalid(rest, True)[0].all())
+
+    def __getattr__(self, name):  # everything else (interpolate, padding, check, ...) is the checker's
+        return getattr(self.checker, name)

@@ -1,0 +1,83 @@
+"""The convex pass decides as FCL does: compiled GJK on the same padded shapes, FCL only for the band."""
+
+from __future__ import annotations
+
+import fcl
+import numpy as np
+
+from replanner.bench.scenes import add_table, clutter_map
+from replanner.world.collision import CollisionChecker
+from replanner.world.convex_pass import decide_batch
+from replanner.world.geometry import Box, ConvexHull, Cylinder, Sphere, padded, padding_directions, to_fcl
+from replanner.world.gjk import APART, BAND, POINTS, TOUCH, decide
+from replanner.world.layered import FastChecker
+from replanner.world.scene import World
+from replanner.world.sphere_layer import FREE, UNSURE
+from replanner.world.transforms import make_transform
+
+
+def test_gjk_says_apart_or_touching_as_fcl_does_on_random_shapes():
+    rng = np.random.default_rng(11)
+    ico = padding_directions()
+    counts = {APART: 0, TOUCH: 0, BAND: 0}
+    S, small = np.empty((4, 3)), np.empty(3)
+    for i in range(3000):
+        pts = rng.normal(size=(int(rng.integers(4, 40)), 3)) * rng.uniform(0.02, 0.15, 3)
+        hull = ConvexHull.of_points(pts)
+        pad = float(rng.choice([0.0, 0.002, 0.01]))
+        Ta = make_transform(rng.uniform(-0.05, 0.05, 3), rng.normal(size=4))
+        Tb = make_transform(rng.uniform(-0.35, 0.35, 3), rng.normal(size=4))
+        kind = i % 3  # the sphere layer's numbers: box, ball, cylinder
+        if kind == 0:
+            prim = Box(size=tuple(rng.uniform(0.02, 0.4, 3)))
+            dims = np.asarray(prim.size) / 2
+        elif kind == 1:
+            prim = Sphere(radius=float(rng.uniform(0.01, 0.2)))
+            dims = np.array([prim.radius, 0.0, 0.0])
+        else:
+            prim = Cylinder(radius=float(rng.uniform(0.01, 0.1)), length=float(rng.uniform(0.05, 0.5)))
+            dims = np.array([prim.radius, prim.length / 2, 0.0])
+        V = np.ascontiguousarray(np.vstack([hull.vertices, ico]))
+        nv = len(hull.vertices)
+        r = decide(
+            POINTS, Ta[:3, :3], Ta[:3, 3], np.zeros(3), V, 0, nv, V, nv, len(V), pad,
+            kind, np.ascontiguousarray(Tb[:3, :3]), np.ascontiguousarray(Tb[:3, 3]), dims, 0, 0, 0, 0, 0.0, 1e-6, S,
+            small,
+        )  # fmt: skip
+        a = fcl.CollisionObject(to_fcl(padded(hull, pad)), fcl.Transform(Ta[:3, :3], Ta[:3, 3]))
+        b = fcl.CollisionObject(to_fcl(prim), fcl.Transform(Tb[:3, :3], Tb[:3, 3]))
+        meets = fcl.collide(a, b, fcl.CollisionRequest(), fcl.CollisionResult())
+        counts[r] += 1
+        assert not (r == APART and meets), (i, "apart for GJK, in contact for FCL")
+        assert not (r == TOUCH and not meets), (i, "in contact for GJK, apart for FCL")
+    assert counts[APART] > 500 and counts[TOUCH] > 500, counts
+    assert counts[BAND] <= 3, counts  # only shapes within a micrometre of touching are left to FCL
+
+
+def test_the_convex_pass_decides_what_the_spheres_cannot_as_fcl_does(profile):
+    cfg, robot = profile
+    rng = np.random.default_rng(8)
+    world = World(robot)
+    add_table(world)
+    world.add("post", Cylinder(radius=0.05, length=0.8), make_transform((0.45, 0.35, 0.4), (0, 0, 0, 1)))
+    world.add("ball", Sphere(radius=0.08), make_transform((0.3, -0.4, 0.6), (0, 0, 0, 1)))
+    world.add("shelf", Box(size=(0.3, 0.6, 0.02)), make_transform((0.55, 0.0, 0.5), rng.normal(size=4)))
+    tip = robot.bodies[-1].link
+    world.attach_new("part", Box(size=(0.05, 0.05, 0.12)), tip, make_transform((0, 0, 0.1), (0, 0, 0, 1)))
+    for padding in (0.002, cfg.collision.padding):
+        for occ in (None, clutter_map(rng, 5_000)):
+            world.set_occupancy(occ)
+            checker = CollisionChecker(robot, world, padding=padding, path_resolution=cfg.collision.path_resolution,
+                                       allowed_contacts=cfg.collision.allowed_contacts)  # fmt: skip
+            fast = FastChecker(checker)
+            Q = robot.random_q(rng, 4_000)
+            layer, volume, convex = fast.passes()
+            frames = robot.frames(Q)
+            unsure = np.flatnonzero(layer.classify(Q, frames, volume) == UNSURE)
+            verdict = decide_batch(convex, layer, frames, unsure, volume)
+            valid = checker.is_valid_batch(Q[unsure])
+            assert not np.any((verdict == FREE) & ~valid), "free for the pass, in contact for FCL"
+            assert not np.any((verdict == -1) & valid), "in contact for the pass, free for FCL"
+            if occ is None:  # without a map, the pass decides nearly all the spheres could not
+                assert (verdict == 0).sum() <= 0.01 * len(unsure), ((verdict == 0).sum(), len(unsure))
+            np.testing.assert_array_equal(fast.is_valid_batch(Q), checker.is_valid_batch(Q))
