@@ -11,7 +11,7 @@ import numpy as np
 from .collision_scene import CollisionScene
 from .geometry import Box, ConvexHull, Mesh, padding_directions
 from .gjk import APART, POINTS, TOUCH, decide
-from .sphere_layer import SphereScene, _distance, _place, _voxels_in
+from .sphere_layer import SphereScene, _distance, _place, _voxels_in, spheres_meet_map
 
 TOL = 1e-6  # [m] closer than this, or touching by less, is FCL's to decide
 CORNERS = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
@@ -106,12 +106,8 @@ def _decide_all(
                 g = ball_r[b] + map_pad * gf[b]
                 if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
                     _place(F, local, first[b], first[b + 1], C)
-                    for s in range(first[b], first[b + 1]):
-                        g = rad[s] + map_pad * gf[b]
-                        cx, cy, cz = C[s, 0], C[s, 1], C[s, 2]
-                        if _voxels_in(sat, key_min, inv_res, cx - g, cy - g, cz - g, cx + g, cy + g, cz + g) > 0:
-                            verdict = 0
-                            break
+                    if spheres_meet_map(C, rad, first[b], first[b + 1], map_pad * gf[b], sat, key_min, inv_res):
+                        verdict = 0
         if verdict != -1:
             for p in range(pair_a.shape[0]):
                 a, b = pair_a[p], pair_b[p]

@@ -233,6 +233,17 @@ def _distance(M, k, dim, x, y, z):
     return np.sqrt(qr * qr + qz * qz)
 
 
+@numba.njit(cache=True, nogil=True)
+def spheres_meet_map(C, rad, first, last, grow, sat, key_min, inv_res) -> bool:
+    """Whether any placed sphere C[first:last] (radii grown by `grow`) may meet a voxel of the map."""
+    for s in range(first, last):
+        g = rad[s] + grow
+        cx, cy, cz = C[s, 0], C[s, 1], C[s, 2]
+        if _voxels_in(sat, key_min, inv_res, cx - g, cy - g, cz - g, cx + g, cy + g, cz + g) > 0:
+            return True
+    return False
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _place(F, P, first, last, out):
     for s in range(first, last):
@@ -297,12 +308,8 @@ def _one(
                     _place(frames[n, ball_slot[b]], local, first[b], first[b + 1], C)
                     _place(frames[n, ball_slot[b]], in_local, in_first[b], in_first[b + 1], IC)
                     placed[b] = True
-                for s in range(first[b], first[b + 1]):
-                    g = rad[s] + mg
-                    cx, cy, cz = C[s, 0], C[s, 1], C[s, 2]
-                    if _voxels_in(sat, key_min, inv_res, cx - g, cy - g, cz - g, cx + g, cy + g, cz + g) > 0:
-                        verdict = 0
-                        break
+                if spheres_meet_map(C, rad, first[b], first[b + 1], mg, sat, key_min, inv_res):
+                    verdict = 0
     if verdict != -1:
         for p in range(pair_a.shape[0]):
             ba, bb = pair_a[p], pair_b[p]
