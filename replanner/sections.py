@@ -258,6 +258,11 @@ class PlanningConfig(Section):
         description="Validity checks of the first attempt before retrying with fresh random samples, each retry "
         "twice as many (counts).",
     )
+    retry_planner: str | None = Field(
+        "LBKPIECE1",
+        description="The default planner's retries alternate with this OMPL planner (null: retry with the same). A "
+        "lazy planner solves narrow passages that RRTConnect's retries miss.",
+    )
     shortcut_tries: int = Field(10, ge=0, description="Random shortcuts tried after the search (a count).")
     range: float | None = Field(1.5, gt=0.0, description="Planner step [rad]; null: OMPL's default.")
     search_coarseness: float = Field(

@@ -62,6 +62,19 @@ def test_planners_by_name(planner, wall_world, name):
     assert wall_world[1].check_path(res.path).valid
 
 
+def test_retries_alternate_with_the_retry_planner_unless_a_planner_is_asked_for(wall_world):
+    checker = wall_world[1]
+    starved = dict(attempt_checks=1, seed=3)  # the first attempts cannot finish: retries decide
+    res = Planner(checker, retry_planner="LBKPIECE1", **starved).plan(A, B, deadline=5.0)
+    assert res.attempts >= 2 and res.planner == ("LBKPIECE1" if res.attempts % 2 == 0 else "RRTConnect")
+    assert checker.check_path(res.path).valid
+    assert Planner(checker, retry_planner=None, **starved).plan(A, B, deadline=5.0).planner == "RRTConnect"
+    asked = Planner(checker, retry_planner="LBKPIECE1", **starved).plan(A, B, planner="RRTConnect", deadline=5.0)
+    assert asked.planner == "RRTConnect" and asked.attempts >= 2
+    with pytest.raises(UnknownPlanner, match="RRTTurbo"):
+        Planner(checker, retry_planner="RRTTurbo")
+
+
 def test_free_straight_line_needs_no_search(planner):
     res = planner.plan(A, A + np.r_[0.3, 0, 0, 0, 0, 0, 0])
     assert res.direct and len(res.path) == 2

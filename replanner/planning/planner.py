@@ -141,6 +141,7 @@ class Planner:
         planner_range: planner step [rad]; None keeps OMPL's default.
         search_coarseness: motions are checked this many times coarser while searching (the result is then
             checked finely, and searched again finely if a thin obstacle slipped through).
+        retry_planner: the default planner's retries alternate with this one (None: the same planner again).
         seed: every plan starts from this seed (OMPL's generator and the shortcutting): the same problem gives the
             same path, alone or after others. None: fresh randomness. OMPL's generator is per process: planners
             planning at the same time in threads of one process share it.
@@ -160,6 +161,7 @@ class Planner:
         search_coarseness: float = 4.0,
         seed: int | None = None,
         collision_layer: str = "spheres",
+        retry_planner: str | None = None,
     ):
         if collision_layer not in ("spheres", "fcl"):
             raise InvalidInputError(f"collision_layer must be 'spheres' or 'fcl', got {collision_layer!r}")
@@ -170,6 +172,9 @@ class Planner:
         self.robot = checker.robot
         planner_class(planner)  # raises on an unknown name
         self.default_planner = planner
+        if retry_planner is not None:
+            planner_class(retry_planner)
+        self.retry_planner = retry_planner
         if attempt_checks < 1 or shortcut_tries < 0:
             raise InvalidInputError("attempt_checks must be >= 1 and shortcut_tries >= 0")
         self.attempt_checks = int(attempt_checks)
@@ -224,6 +229,7 @@ class Planner:
             search_coarseness=cfg.search_coarseness,
             seed=seed,
             collision_layer=cfg.collision_layer,
+            retry_planner=cfg.retry_planner,
         )
 
     def _layered(self, checker: CollisionChecker):
@@ -332,11 +338,9 @@ class Planner:
         t_searching = time.perf_counter()
         ss = og.SimpleSetup(self.si)
         ss.setStartAndGoalStates(self._alloc(start), self._alloc(q_goal))
-        algo = cls(self.si)
-        if self.planner_range is not None and hasattr(algo, "setRange"):
-            algo.setRange(self.planner_range)
-        ss.setPlanner(algo)
-        attempts, found = 0, False
+        # the default planner's retries alternate with the retry planner: planners fail on different problems
+        other = planner_class(self.retry_planner) if planner is None and self.retry_planner else cls
+        attempts, found, used = 0, False, None
         pdef = ss.getProblemDefinition()
         self._search_resolution = self.search_coarseness * self.checker.path_resolution
         while not found:
@@ -344,6 +348,12 @@ class Planner:
             if remaining <= 0 or (cancel is not None and cancel.is_set()):
                 break
             attempts += 1
+            use = other if attempts % 2 == 0 else cls
+            if use is not used:
+                used, algo = use, use(self.si)
+                if self.planner_range is not None and hasattr(algo, "setRange"):
+                    algo.setRange(self.planner_range)
+                ss.setPlanner(algo)
             ptc = ob.plannerOrTerminationCondition(
                 ob.exactSolnPlannerTerminationCondition(pdef),
                 ob.timedPlannerTerminationCondition(remaining),  # the deadline, the only clock in a plan
@@ -376,6 +386,7 @@ class Planner:
         self._confirm(W)
         simplify_time = time.perf_counter() - t_simp
         total = time.perf_counter() - t_begin
+        name = next(k for k, v in PLANNERS.items() if v is used)
         return PlanResult(W, q_goal, name, attempts, search_time, simplify_time, total, raw_waypoints=raw)
 
     def _confirm(self, W: np.ndarray) -> None:
