@@ -259,9 +259,7 @@ class PlanningConfig(Section):
         "twice as many (counts).",
     )
     retry_planner: str | None = Field(
-        "LBKPIECE1",
-        description="The default planner's retries alternate with this OMPL planner (null: retry with the same). A "
-        "lazy planner solves narrow passages that RRTConnect's retries miss.",
+        "LBKPIECE1", description="The default planner's retries alternate with this one (null: the same again)."
     )
     shortcut_tries: int = Field(10, ge=0, description="Random shortcuts tried after the search (a count).")
     range: float | None = Field(1.5, gt=0.0, description="Planner step [rad]; null: OMPL's default.")

@@ -100,6 +100,27 @@ def test_the_check_slows_or_brakes_as_the_formula_says(scene, panda_cfg, T_r):
         stack.world.set_occupancy(None)
 
 
+def test_an_arm_at_rest_held_by_the_resume_margin_says_so(scene, panda_cfg):
+    stack, traj = scene
+    cfg = panda_cfg.controller.speed_separation
+    check = SpeedSeparationCheck(stack.checker, stack.generator, cfg, lambda now: 0.2, lambda now: 0.0)
+    t = traj.duration  # at the goal: at rest
+    top = stack.checker.body_poses(traj.state_at(t)[0])
+    above = top.poses[:, :3, 3][np.argmax(top.poses[:, 2, 3])]
+    held = 0
+    try:
+        for gap in np.arange(0.2, 0.7, 0.02):
+            stack.world.set_occupancy(_voxels_at(above + [0.0, 0.0, gap + 0.03]))
+            verdict = check(_view(traj, t))
+            terms, S = check.last, check.last_separation
+            if terms.at_scale(0.0) <= S < terms.at_scale(0.0) + cfg.resume_margin:  # only the margin holds it
+                held += 1
+                assert not verdict.clear and f"+ {cfg.resume_margin:.3f} m to move on from rest" in verdict.reason
+    finally:
+        stack.world.set_occupancy(None)
+    assert held > 0
+
+
 def _lowest_speed(panda_cfg, panda, camera_latency: float) -> tuple[float, object]:
     cfg = panda_cfg.override(
         {

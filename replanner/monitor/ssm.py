@@ -208,9 +208,11 @@ class SpeedSeparationCheck(Check):
         now_factor = float(np.min(traj.limits.velocity / traj.nominal.velocity))
         at_rest = float(v.max()) < 1e-6  # held, or the motion's end: moving on needs room to spare
         if scale < 0 or (at_rest and S < terms.at_scale(0.0) + self.cfg.resume_margin):
+            # at rest the arm moves on only with the resume margin to spare: say so, or the numbers contradict
+            extra = f" + {self.cfg.resume_margin:.3f} m to move on from rest" if at_rest and scale >= 0 else ""
             reason = (
                 f"speed and separation: {S:.3f} m to what the cameras see, less than the {terms.at_scale(0):.3f} m "
-                f"a reaction takes at rest (T_r {T_r * 1e3:.0f} ms)"
+                f"a reaction takes at rest{extra} (T_r {T_r * 1e3:.0f} ms)"
             )
             return Verdict(self.name, False, reason, clearance=S, speed_factor=0.0)
         factor = min(1.0, now_factor * scale) if math.isfinite(scale) else 1.0

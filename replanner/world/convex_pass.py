@@ -11,7 +11,15 @@ import numpy as np
 from .collision_scene import CollisionScene
 from .geometry import Box, ConvexHull, Mesh, padding_directions
 from .gjk import APART, POINTS, TOUCH, decide
-from .sphere_layer import SphereScene, _distance, _place, _voxels_in, spheres_meet_map
+from .sphere_layer import (
+    SphereScene,
+    _distance,
+    _place,
+    _voxels_in,
+    spheres_meet_body,
+    spheres_meet_map,
+    spheres_meet_primitive,
+)
 
 TOL = 1e-6  # [m] closer than this, or touching by less, is FCL's to decide
 CORNERS = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
@@ -53,13 +61,16 @@ class ConvexPass:
         self.pair_a, self.pair_b = scene.pair_a.astype(np.int64), scene.pair_b.astype(np.int64)
 
 
-def decide_batch(cp: ConvexPass, layer: SphereScene, frames: np.ndarray, idx: np.ndarray, vol) -> np.ndarray:
-    """Verdicts (len(idx),) on configurations frames[idx]: 1 free, -1 in contact, 0 FCL's to decide."""
+def decide_batch(
+    cp: ConvexPass, layer: SphereScene, frames: np.ndarray, idx: np.ndarray, vol, stop: bool = False
+) -> np.ndarray:
+    """Verdicts (len(idx),) on configurations frames[idx]: 1 free, -1 in contact, 0 FCL's to decide. `stop`:
+    return at the first contact (the rest stay 0)."""
     out = np.zeros(len(idx), np.int8)
     _decide_all(
-        np.ascontiguousarray(frames), np.asarray(idx, np.int64), out, cp.P, cp.D, cp.pfirst, cp.dfirst, cp.supported,
-        layer.env_pad, layer.self_pad, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b, layer.local, layer.radius, layer.first,
-        layer.ball_slot, layer.ball_c, layer.ball_r, layer.gf, layer.map_pad, layer.env_mask,
+        np.ascontiguousarray(frames), np.asarray(idx, np.int64), out, stop, cp.P, cp.D, cp.pfirst, cp.dfirst,
+        cp.supported, layer.env_pad, layer.self_pad, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b, layer.local, layer.radius,
+        layer.first, layer.ball_slot, layer.ball_c, layer.ball_r, layer.gf, layer.map_pad, layer.env_mask,
         layer.ob_kind, layer.ob_inv, layer.ob_dim, layer.ob_id, layer.ob_exact, layer.octree_mask, vol.sat,
         vol.key_min, vol.inv_res,
     )  # fmt: skip
@@ -68,32 +79,38 @@ def decide_batch(cp: ConvexPass, layer: SphereScene, frames: np.ndarray, idx: np
 
 @numba.njit(cache=True, nogil=True)
 def _decide_all(
-    frames, idx, out, P, D, pfirst, dfirst, supported, env_pad, self_pad, ob_R, ob_t, pair_a, pair_b,
+    frames, idx, out, stop, P, D, pfirst, dfirst, supported, env_pad, self_pad, ob_R, ob_t, pair_a, pair_b,
     local, rad, first, ball_slot, ball_c, ball_r, gf, map_pad, env_mask,
     ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, key_min, inv_res,
 ):  # fmt: skip
     B, O = ball_slot.shape[0], ob_kind.shape[0]
     BC, C = np.empty((B, 3)), np.empty((local.shape[0], 3))
     S, small, none = np.empty((4, 3)), np.empty(3), np.zeros(3)
+    placed = np.zeros(B, np.bool_)
     for j in range(idx.shape[0]):
         n = idx[j]
         for b in range(B):
             _place(frames[n, ball_slot[b]], ball_c, b, b + 1, BC)
+            placed[b] = False
         verdict = APART
         for b in range(B):
             F = frames[n, ball_slot[b]]
             x, y, z = BC[b, 0], BC[b, 1], BC[b, 2]
+            eg = env_pad * gf[b]
             for o in range(O):
-                if not env_mask[b, ob_id[o]]:
+                if not env_mask[b, ob_id[o]] or _distance(ob_inv[o], ob_kind[o], ob_dim[o], x, y, z) > ball_r[b] + eg:
                     continue
-                if _distance(ob_inv[o], ob_kind[o], ob_dim[o], x, y, z) > ball_r[b] + env_pad * gf[b]:
-                    continue
+                if not placed[b]:
+                    _place(F, local, first[b], first[b + 1], C)
+                    placed[b] = True
+                if not spheres_meet_primitive(C, rad, first[b], first[b + 1], eg, ob_inv[o], ob_kind[o], ob_dim[o]):
+                    continue  # the covering spheres are clear of it: so is the body
                 if not (supported[b] and ob_exact[o]):
                     verdict = 0
                     continue
                 r = decide(
                     POINTS, F[:3, :3], F[:3, 3], none, P, pfirst[b], pfirst[b + 1], D, dfirst[b], dfirst[b + 1],
-                    env_pad, ob_kind[o], ob_R[o], ob_t[o], ob_dim[o], 0, 0, 0, 0, 0.0, 1e-6, S, small,
+                    env_pad, ob_kind[o], ob_R[o], ob_t[o], ob_dim[o], 0, 0, 0, 0, 0.0, TOL, S, small,
                 )  # fmt: skip
                 if r == TOUCH:
                     verdict = -1
@@ -105,15 +122,24 @@ def _decide_all(
             if verdict == APART and octree_mask[b]:  # the map's voxels: the spheres' test, else FCL's
                 g = ball_r[b] + map_pad * gf[b]
                 if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
-                    _place(F, local, first[b], first[b + 1], C)
+                    if not placed[b]:
+                        _place(F, local, first[b], first[b + 1], C)
+                        placed[b] = True
                     if spheres_meet_map(C, rad, first[b], first[b + 1], map_pad * gf[b], sat, key_min, inv_res):
                         verdict = 0
         if verdict != -1:
             for p in range(pair_a.shape[0]):
                 a, b = pair_a[p], pair_b[p]
                 d0, d1, d2 = BC[a, 0] - BC[b, 0], BC[a, 1] - BC[b, 1], BC[a, 2] - BC[b, 2]
-                reach = ball_r[a] + ball_r[b] + self_pad * (gf[a] + gf[b])
+                sg = self_pad * (gf[a] + gf[b])
+                reach = ball_r[a] + ball_r[b] + sg
                 if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach:
+                    continue
+                for bo in (a, b):
+                    if not placed[bo]:
+                        _place(frames[n, ball_slot[bo]], local, first[bo], first[bo + 1], C)
+                        placed[bo] = True
+                if not spheres_meet_body(C, rad, first[a], first[a + 1], first[b], first[b + 1], BC[b], ball_r[b], sg):
                     continue
                 if not (supported[a] and supported[b]):
                     verdict = 0
@@ -122,7 +148,7 @@ def _decide_all(
                 r = decide(
                     POINTS, Fa[:3, :3], Fa[:3, 3], none, P, pfirst[a], pfirst[a + 1], D, dfirst[a], dfirst[a + 1],
                     self_pad, POINTS, Fb[:3, :3], Fb[:3, 3], none, pfirst[b], pfirst[b + 1], dfirst[b], dfirst[b + 1],
-                    self_pad, 1e-6, S, small,
+                    self_pad, TOL, S, small,
                 )  # fmt: skip
                 if r == TOUCH:
                     verdict = -1
@@ -130,3 +156,5 @@ def _decide_all(
                 if r != APART:
                     verdict = 0
         out[j] = verdict
+        if verdict == -1 and stop:
+            return

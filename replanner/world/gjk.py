@@ -183,9 +183,12 @@ def _apart(
     kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S,
 ):  # fmt: skip
     """1: apart by more than tol for certain; -1: they meet (origin inside the difference); 0: undecided."""
+    d = (tb[0] - ta[0], tb[1] - ta[1], tb[2] - ta[2])  # from a toward b: a first point near the closest
+    if d[0] == 0.0 and d[1] == 0.0 and d[2] == 0.0:
+        d = (1.0, 0.0, 0.0)
     v = _sub(
-        support(ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, (1.0, 0.0, 0.0)),
-        support(kb, Rb, tb, dimsb, P, pb0, pb1, D, db0, db1, padb, (-1.0, 0.0, 0.0)),
+        support(ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, d),
+        support(kb, Rb, tb, dimsb, P, pb0, pb1, D, db0, db1, padb, (-d[0], -d[1], -d[2])),
     )
     S[0, 0], S[0, 1], S[0, 2] = v
     k = 1

@@ -64,10 +64,10 @@ class FastChecker:
             Q = self.checker.robot.check_q(Q)  # raises with the reason
         return Q
 
-    def _second(self, c, Q, frames, verdict, which: np.ndarray) -> None:
-        """The convex pass on configurations `which` (unsure after the spheres), in place."""
+    def _second(self, c, Q, frames, verdict, which: np.ndarray, stop: bool = False) -> None:
+        """The convex pass on configurations `which` (unsure after the spheres), in place; `stop`: at a contact."""
         if self.convex and len(which):
-            verdict[which] = decide_batch(c[4], c[2], frames, which, c[3])
+            verdict[which] = decide_batch(c[4], c[2], frames, which, c[3], stop)
 
     def is_valid_batch(self, Q) -> np.ndarray:
         """Validity (N,) of configurations Q (N, dof), as `checker.is_valid_batch` says."""
@@ -104,7 +104,7 @@ class FastChecker:
         if (verdict == CONTACT).any():
             return False
         rest = order[verdict[order] == UNSURE]
-        self._second(c, Q, frames, verdict, rest)
+        self._second(c, Q, frames, verdict, rest, stop=True)
         if (verdict == CONTACT).any():
             return False
         rest = rest[verdict[rest] == UNSURE]
@@ -131,7 +131,7 @@ class FastChecker:
         Q = a + (unsure / steps)[:, None] * (b - a)
         Q[unsure == steps] = b
         verdict = np.zeros(len(Q), np.int8)
-        self._second(c, Q, self.checker.robot.frames(Q), verdict, np.arange(len(Q)))
+        self._second(c, Q, self.checker.robot.frames(Q), verdict, np.arange(len(Q)), stop=True)
         if (verdict == CONTACT).any():
             return False
         rest = Q[verdict == UNSURE]

@@ -234,6 +234,32 @@ def _distance(M, k, dim, x, y, z):
 
 
 @numba.njit(cache=True, nogil=True)
+def spheres_meet_primitive(C, rad, first, last, grow, M, kind, dim) -> bool:
+    """Whether any placed sphere C[first:last] (radii grown by `grow`) meets primitive (M, kind, dim)."""
+    for s in range(first, last):
+        if _distance(M, kind, dim, C[s, 0], C[s, 1], C[s, 2]) <= rad[s] + grow:
+            return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def spheres_meet_body(C, rad, a0, a1, b0, b1, ball, ball_r, grow) -> bool:
+    """Whether a placed sphere of C[a0:a1] meets one of C[b0:b1] (radii grown by `grow` together); the second
+    body's bounding ball (`ball`, `ball_r`) rules out most of the first's spheres."""
+    bx, by, bz, br = ball[0], ball[1], ball[2], ball_r + grow
+    for a in range(a0, a1):
+        d0, d1, d2 = C[a, 0] - bx, C[a, 1] - by, C[a, 2] - bz
+        if d0 * d0 + d1 * d1 + d2 * d2 > (rad[a] + br) ** 2:
+            continue  # this sphere is apart from the other body's ball
+        for c in range(b0, b1):
+            d0, d1, d2 = C[a, 0] - C[c, 0], C[a, 1] - C[c, 1], C[a, 2] - C[c, 2]
+            reach = rad[a] + rad[c] + grow
+            if d0 * d0 + d1 * d1 + d2 * d2 <= reach * reach:
+                return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
 def spheres_meet_map(C, rad, first, last, grow, sat, key_min, inv_res) -> bool:
     """Whether any placed sphere C[first:last] (radii grown by `grow`) may meet a voxel of the map."""
     for s in range(first, last):
@@ -279,13 +305,11 @@ def _one(
             _place(frames[n, ball_slot[b]], in_local, in_first[b], in_first[b + 1], IC)
             placed[b] = True
         hit = False  # a covering sphere meets an obstacle: then maybe an inner ball does too (certain)
-        for s in range(first[b], first[b + 1]):
-            for i in range(m):
-                o = near[i]
-                if _distance(ob_inv[o], ob_kind[o], ob_dim[o], C[s, 0], C[s, 1], C[s, 2]) <= rad[s] + eg:
-                    hit = True
-                    break
-            if hit:
+        for i in range(m):
+            if spheres_meet_primitive(
+                C, rad, first[b], first[b + 1], eg, ob_inv[near[i]], ob_kind[near[i]], ob_dim[near[i]]
+            ):
+                hit = True
                 break
         if hit:
             verdict = 0
@@ -323,21 +347,9 @@ def _one(
                     _place(frames[n, ball_slot[bo]], local, first[bo], first[bo + 1], C)
                     _place(frames[n, ball_slot[bo]], in_local, in_first[bo], in_first[bo + 1], IC)
                     placed[bo] = True
-            hit = False
-            bx, by, bz, br = BC[bb, 0], BC[bb, 1], BC[bb, 2], ball_r[bb] + sg
-            for a in range(first[ba], first[ba + 1]):
-                d0, d1, d2 = C[a, 0] - bx, C[a, 1] - by, C[a, 2] - bz
-                if d0 * d0 + d1 * d1 + d2 * d2 > (rad[a] + br) ** 2:
-                    continue  # this sphere is apart from the other body's ball
-                for c in range(first[bb], first[bb + 1]):
-                    d0, d1, d2 = C[a, 0] - C[c, 0], C[a, 1] - C[c, 1], C[a, 2] - C[c, 2]
-                    reach = rad[a] + rad[c] + sg
-                    if d0 * d0 + d1 * d1 + d2 * d2 <= reach * reach:
-                        hit = True
-                        break
-                if hit:
-                    break
-            if not hit:
+            if not spheres_meet_body(
+                C, rad, first[ba], first[ba + 1], first[bb], first[bb + 1], BC[bb], ball_r[bb], sg
+            ):
                 continue
             verdict = 0
             for a in range(in_first[ba], in_first[ba + 1]):  # two inner balls overlap: a contact for certain
