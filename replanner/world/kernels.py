@@ -118,6 +118,9 @@ def warm_up() -> None:
     body_boxes(eye, box, box, np.empty((1, 1, 1, 3)), np.empty((1, 1, 1, 3)))
     boxes_hit_table(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(3), 1.0, np.ones(3, np.int64),
                     np.zeros(8, np.int32), np.empty(1, bool))  # fmt: skip
+    octree_stream(np.zeros(1, np.uint64), 16)  # the first map's octree and broadphase grid
+    keys = np.zeros((1, 3), np.int64)
+    count_cells(keys, keys[0], 1, np.ones(3, np.int64))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -161,6 +164,3 @@ def count_cells(keys, key_min, ratio, n):
             (keys[i, 0] - key_min[0]) // ratio, (keys[i, 1] - key_min[1]) // ratio, (keys[i, 2] - key_min[2]) // ratio
         ] += 1
     return grid
-    octree_stream(np.zeros(1, np.uint64), 16)
-    keys = np.zeros((1, 3), np.int64)
-    count_cells(keys, keys[0], 1, np.ones(3, np.int64))

@@ -37,6 +37,7 @@ class FastChecker:
         c = self._layers()
         q = self.checker.robot.home[None]
         decide_batch(c[4], c[2], self.checker.robot.frames(q), np.zeros(1, np.int64), c[3])
+        self.is_valid_batch(q)
         self.path_valid(np.vstack([q, q]))
 
     def passes(self) -> tuple[SphereScene, VoxelVolume, ConvexPass]:
