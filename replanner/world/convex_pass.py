@@ -77,6 +77,12 @@ def decide_batch(
     return out
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _merge(verdict, r):
+    """One pair's answer folded into the configuration's: a contact decides it, the band leaves it to FCL."""
+    return -1 if r == TOUCH else verdict if r == APART else 0
+
+
 @numba.njit(cache=True, nogil=True)
 def _decide_all(
     frames, idx, out, stop, P, D, pfirst, dfirst, supported, env_pad, self_pad, ob_R, ob_t, pair_a, pair_b,
@@ -112,11 +118,9 @@ def _decide_all(
                     POINTS, F[:3, :3], F[:3, 3], none, P, pfirst[b], pfirst[b + 1], D, dfirst[b], dfirst[b + 1],
                     env_pad, ob_kind[o], ob_R[o], ob_t[o], ob_dim[o], 0, 0, 0, 0, 0.0, TOL, S, small,
                 )  # fmt: skip
-                if r == TOUCH:
-                    verdict = -1
+                verdict = _merge(verdict, r)
+                if verdict == -1:
                     break
-                if r != APART:
-                    verdict = 0
             if verdict == -1:
                 break
             if verdict == APART and octree_mask[b]:  # the map's voxels: the spheres' test, else FCL's
@@ -150,11 +154,9 @@ def _decide_all(
                     self_pad, POINTS, Fb[:3, :3], Fb[:3, 3], none, pfirst[b], pfirst[b + 1], dfirst[b], dfirst[b + 1],
                     self_pad, TOL, S, small,
                 )  # fmt: skip
-                if r == TOUCH:
-                    verdict = -1
+                verdict = _merge(verdict, r)
+                if verdict == -1:
                     break
-                if r != APART:
-                    verdict = 0
         out[j] = verdict
         if verdict == -1 and stop:
             return

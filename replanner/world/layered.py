@@ -65,7 +65,7 @@ class FastChecker:
             Q = self.checker.robot.check_q(Q)  # raises with the reason
         return Q
 
-    def _second(self, c, Q, frames, verdict, which: np.ndarray, stop: bool = False) -> None:
+    def _second(self, c, frames, verdict, which: np.ndarray, stop: bool = False) -> None:
         """The convex pass on configurations `which` (unsure after the spheres), in place; `stop`: at a contact."""
         if self.convex and len(which):
             verdict[which] = decide_batch(c[4], c[2], frames, which, c[3], stop)
@@ -76,7 +76,7 @@ class FastChecker:
         c = self._layers()
         frames = self.checker.robot.frames(Q)
         verdict = c[2].classify(Q, frames, c[3])
-        self._second(c, Q, frames, verdict, np.flatnonzero(verdict == UNSURE))
+        self._second(c, frames, verdict, np.flatnonzero(verdict == UNSURE))
         out = verdict == FREE
         if self.checker.check_limits:
             out &= ((Q >= self._lo) & (Q <= self._hi)).all(axis=1)
@@ -105,7 +105,7 @@ class FastChecker:
         if (verdict == CONTACT).any():
             return False
         rest = order[verdict[order] == UNSURE]
-        self._second(c, Q, frames, verdict, rest, stop=True)
+        self._second(c, frames, verdict, rest, stop=True)
         if (verdict == CONTACT).any():
             return False
         rest = rest[verdict[rest] == UNSURE]
@@ -132,7 +132,7 @@ class FastChecker:
         Q = a + (unsure / steps)[:, None] * (b - a)
         Q[unsure == steps] = b
         verdict = np.zeros(len(Q), np.int8)
-        self._second(c, Q, self.checker.robot.frames(Q), verdict, np.arange(len(Q)), stop=True)
+        self._second(c, self.checker.robot.frames(Q), verdict, np.arange(len(Q)), stop=True)
         if (verdict == CONTACT).any():
             return False
         rest = Q[verdict == UNSURE]

@@ -79,15 +79,8 @@ class SelfClearanceTables:
             r1[i] = r[joints[1]] if len(joints) > 1 else 0.0
         self.r0, self.r1 = r0, r1
         self.table = self._load_or_build(rows, cache_dir)
-        # both joints of every pair side by side: columns [0, P) first joint, [P, 2P) second
-        self._J = np.concatenate([j0, j1])
-        self._LO = np.concatenate([self.lo0, self.lo1])
-        self._STEP = np.concatenate([self.step0, self.step1])
-        self._NMAX = np.concatenate([n0 - 1, n1 - 1]).astype(np.float64)
-        eye = np.eye(P)
-        self._W = np.vstack([eye * n1, eye]).astype(np.int64)  # flat index = i0 * n1 + i1
-        self._R = np.vstack([eye * (r0 * self.step0), eye * (r1 * self.step1)])  # slack per grid unit
-        # the same per pair, packed for compiled callers (may_collide_row)
+        self.lookup = self.table if len(self.table) else np.zeros(1)  # the table for compiled callers: never empty
+        # per pair, packed for the compiled lookups: joints, grid sizes, offset; lows, steps, slack per grid unit
         self.packed_i = np.ascontiguousarray(np.stack([j0, j1, n0, n1, self.offset], axis=1).reshape(P, 5), np.int64)
         self.packed_f = np.ascontiguousarray(
             np.stack([self.lo0, self.lo1, self.step0, self.step1, r0 * self.step0, r1 * self.step1], axis=1).reshape(
@@ -95,14 +88,9 @@ class SelfClearanceTables:
             )
         )
         for arr in (
+            self.lookup,
             self.packed_i,
             self.packed_f,
-            self._J,
-            self._LO,
-            self._STEP,
-            self._NMAX,
-            self._W,
-            self._R,
             self.j0,
             self.j1,
             self.lo0,
@@ -117,6 +105,7 @@ class SelfClearanceTables:
             self.table,
         ):
             arr.setflags(write=False)
+        self.may_collide(robot.home[None])  # compile the lookup now, not in the monitor's first check
 
     @staticmethod
     def _reach(robot, bi: int) -> np.ndarray:
@@ -202,24 +191,34 @@ class SelfClearanceTables:
 
     def may_collide(self, Q: np.ndarray) -> np.ndarray:
         """(N, P_table) True where the tabulated pair may be in contact at configurations Q (N, dof)."""
-        P = len(self.pair_index)
-        u = (Q[:, self._J] - self._LO) / self._STEP
-        i = np.clip(np.rint(u), 0, self._NMAX)
-        idx = i.astype(np.int64) @ self._W + self.offset
-        slack = np.abs(u - i) @ self._R if P else np.zeros((len(Q), 0))
-        return self.table[idx] <= slack
+        out = np.empty((len(Q), len(self.pair_index)), np.bool_)
+        _may_collide_rows(np.ascontiguousarray(Q, dtype=np.float64), self.packed_i, self.packed_f, self.lookup, out)
+        return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _pair_maybe(q, p, packed_i, packed_f, table) -> bool:
+    """Whether tabulated pair p may be in contact at q: its nearest grid point's clearance less the Lipschitz slack."""
+    j0, j1, n0, n1, off = packed_i[p, 0], packed_i[p, 1], packed_i[p, 2], packed_i[p, 3], packed_i[p, 4]
+    u0 = (q[j0] - packed_f[p, 0]) / packed_f[p, 2]
+    u1 = (q[j1] - packed_f[p, 1]) / packed_f[p, 3]
+    i0 = min(max(np.rint(u0), 0.0), n0 - 1.0)
+    i1 = min(max(np.rint(u1), 0.0), n1 - 1.0)
+    slack = abs(u0 - i0) * packed_f[p, 4] + abs(u1 - i1) * packed_f[p, 5]
+    return table[np.int64(i0) * n1 + np.int64(i1) + off] <= slack
+
+
+@numba.njit(cache=True, nogil=True)
+def _may_collide_rows(Q, packed_i, packed_f, table, out):
+    for n in range(Q.shape[0]):
+        for p in range(packed_i.shape[0]):
+            out[n, p] = _pair_maybe(Q[n], p, packed_i, packed_f, table)
 
 
 @numba.njit(cache=True, nogil=True)
 def may_collide_row(q, packed_i, packed_f, table) -> bool:
     """True when any tabulated pair may be in contact at configuration q (dof,): `may_collide` for one row."""
     for p in range(packed_i.shape[0]):
-        j0, j1, n0, n1, off = packed_i[p, 0], packed_i[p, 1], packed_i[p, 2], packed_i[p, 3], packed_i[p, 4]
-        u0 = (q[j0] - packed_f[p, 0]) / packed_f[p, 2]
-        u1 = (q[j1] - packed_f[p, 1]) / packed_f[p, 3]
-        i0 = min(max(np.rint(u0), 0.0), n0 - 1.0)
-        i1 = min(max(np.rint(u1), 0.0), n1 - 1.0)
-        slack = abs(u0 - i0) * packed_f[p, 4] + abs(u1 - i1) * packed_f[p, 5]
-        if table[np.int64(i0) * n1 + np.int64(i1) + off] <= slack:
+        if _pair_maybe(q, p, packed_i, packed_f, table):
             return True
     return False

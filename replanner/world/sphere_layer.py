@@ -79,7 +79,7 @@ class SphereScene:
         self.pair_a, self.pair_b = scene.box_a.astype(np.int64), scene.box_b.astype(np.int64)
         t = scene.tables
         self.tab_i, self.tab_f = t.packed_i, t.packed_f
-        self.tab = t.table if len(t.table) else np.zeros(1)
+        self.tab = t.lookup
         ball_c, ball_r, ball_slot = [], [], []
         for bi in range(len(scene.bodies)):
             c, r = self.local[first[bi] : first[bi + 1]], self.radius[first[bi] : first[bi + 1]]
