@@ -18,6 +18,7 @@ import numpy as np
 
 
 def serve(conn: Connection, cancel_conn: Connection) -> None:
+    from . import late_compiles
     from .config import parse_config
     from .planning.worker import error_for_the_wire, plan_and_time
     from .stack import build_stack
@@ -27,6 +28,7 @@ def serve(conn: Connection, cancel_conn: Connection) -> None:
     cfg = parse_config(cfg_data)
     stack = build_stack(cfg, seed=seed, static=(), cameras=False)
     stack.robot.self_clearance_tables()
+    late_compiles.watch()  # a compile from here on eats a replan's deadline
     world = stack.world
     cancel = threading.Event()
     current = [0]
@@ -80,6 +82,7 @@ def serve(conn: Connection, cancel_conn: Connection) -> None:
             conn.send(answer)
         except (EOFError, OSError):
             return
+        late_compiles.new_signatures()  # logs a specialization the warm-ups missed: the next cold start stalls there
 
 
 if __name__ == "__main__":

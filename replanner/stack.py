@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Literal
 
+from . import late_compiles
 from .config import ReplannerConfig
 from .control.controller import Controller
 from .control.latency import LatencyAccount
@@ -131,4 +132,5 @@ def build_stack(
     )
     if stack.perception is not None:
         stack.perception.subscribe(stack.controller.on_map)
+    late_compiles.watch()  # every kernel is compiled by now: a compile from here on stalls a running arm
     return stack

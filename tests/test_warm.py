@@ -30,3 +30,31 @@ def test_building_the_stack_compiles_every_kernel_the_hot_path_calls():
     out = subprocess.run([sys.executable, "-c", CODE], capture_output=True, text=True, timeout=600)  # a fresh process
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout.strip().splitlines()[-1]) == []
+
+
+RUN = """
+import json
+from replanner import late_compiles
+from replanner.bench import reaction, scene_edit
+from replanner.config import load_config
+
+if __name__ == "__main__":
+    cfg = load_config("panda")
+    out = reaction.run(cfg, runs=2, seed=3)  # boxes dropped on the path: map, monitor, replan, splice
+    edit = scene_edit.run(cfg, runs=1, seed=3)  # an object added: the static scene's layers
+    statuses = [r["status"] for r in out["rows"]] + [r["status"] for r in edit["rows"]]
+    print(json.dumps({"new": late_compiles.new_signatures(), "statuses": statuses}))
+"""
+
+
+def test_a_running_stack_meets_no_argument_types_its_warm_ups_missed(tmp_path):
+    # Fails on the old code: shadow_cells got a strided camera origin, count_cells read-only keys and the sphere
+    # layer a read-only Q, each compiled mid-motion on a cold cache (perception silent for 1 s, the arm in the box).
+    script = tmp_path / "run.py"  # a file, not -c: the sim's renderer is a spawned process that imports __main__
+    script.write_text(RUN)
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    assert result["new"] == [], (result["new"], result["statuses"])
+    missed = [line for line in out.stderr.splitlines() if "warm_up" in line]  # the planning child's, or a compile
+    assert missed == [], missed

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..sections import PerceptionConfig, SensorConfig
+from ..world.kernels import kernel_array
 from ..world.occupancy import OccupancyMap
 from ..world.robot import RobotModel
 from ..world.scene import World
@@ -377,7 +378,7 @@ class Perception:
             return np.zeros(0, dtype=np.int64)
         g = self.grid
         flat = shadow_cells(
-            g.keys(surface), np.asarray(origin, dtype=np.float64), g.resolution, int(round(depth / g.resolution)),
+            g.keys(surface), kernel_array(origin), g.resolution, int(round(depth / g.resolution)),
             g.lo, g.hi, g.key_lo, int(g.strides[0]), int(g.strides[1]), g.scratch,
         )  # fmt: skip
         if not len(flat):

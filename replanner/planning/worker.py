@@ -246,11 +246,12 @@ class ProcessWorker(PlanWorker):
     Args:
         cfg: the service's config (robot, collision, planning sections are used).
         seed: the child's planner seed (reproducible plans).
+        start_timeout: [s] to wait for the child to build its stack (seconds; a first start compiles the kernels).
         answer_margin: [s] beyond a job's deadline to wait for the child before giving up on that job (negative:
             before it; tests use that to see a given-up answer arrive late).
     """
 
-    def __init__(self, cfg, seed: int | None = None, *, start_timeout: float = 60.0, answer_margin: float = 30.0):
+    def __init__(self, cfg, seed: int | None = None, *, start_timeout: float = 300.0, answer_margin: float = 30.0):
         super().__init__()
         req_parent, req_child = socket.socketpair()
         cancel_parent, cancel_child = socket.socketpair()
@@ -265,7 +266,10 @@ class ProcessWorker(PlanWorker):
         self._conn.send((cfg.core().model_dump(mode="python"), seed))
         if not self._conn.poll(start_timeout):
             self.close()
-            raise ReplannerError(f"the planning process did not start within {start_timeout} s")
+            raise ReplannerError(
+                f"the planning process did not start within {start_timeout} s (a first start on a machine compiles "
+                "the kernels into numba's cache: see that the cache directory is writable, or set NUMBA_CACHE_DIR)"
+            )
         self._conn.recv()
         self._sent_version: int | None = None
         self._sent_map: object | None = None

@@ -105,6 +105,13 @@ def _cell(x, origin, inv_cell, shift, n):
     return np.int64(min(max(np.floor((x - origin) * inv_cell) + shift, 0.0), np.float64(n)))
 
 
+def kernel_array(a, dtype=np.float64) -> np.ndarray:
+    """C-contiguous and writable: numba compiles a kernel again for another layout or a read-only array, seconds
+    in the middle of a motion on a cold cache."""
+    a = np.ascontiguousarray(a, dtype=dtype)
+    return a if a.flags.writeable else a.copy()
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel now: a first compile takes seconds, too long mid-check."""
     eye = np.eye(4)[None, None].copy()
@@ -120,7 +127,8 @@ def warm_up() -> None:
                     np.zeros(8, np.int32), np.empty(1, bool))  # fmt: skip
     octree_stream(np.zeros(1, np.uint64), 16)  # the first map's octree and broadphase grid
     keys = np.zeros((1, 3), np.int64)
-    count_cells(keys, keys[0], 1, np.ones(3, np.int64))
+    keys.setflags(write=False)  # as an occupancy map holds them: numba compiles read-only arrays apart
+    count_cells(keys, np.zeros(3, np.int64), 1, np.ones(3, np.int64))
 
 
 @numba.njit(cache=True, nogil=True)

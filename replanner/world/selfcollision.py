@@ -21,6 +21,7 @@ import numba
 import numpy as np
 
 from .geometry import bounding_radius, padded, to_fcl
+from .kernels import kernel_array
 
 log = logging.getLogger(__name__)
 
@@ -192,7 +193,7 @@ class SelfClearanceTables:
     def may_collide(self, Q: np.ndarray) -> np.ndarray:
         """(N, P_table) True where the tabulated pair may be in contact at configurations Q (N, dof)."""
         out = np.empty((len(Q), len(self.pair_index)), np.bool_)
-        _may_collide_rows(np.ascontiguousarray(Q, dtype=np.float64), self.packed_i, self.packed_f, self.lookup, out)
+        _may_collide_rows(kernel_array(Q), self.packed_i, self.packed_f, self.lookup, out)
         return out
 
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from .collision_scene import CollisionScene
 from .geometry import Box, Cylinder, Sphere, padding_directions
+from .kernels import kernel_array
 from .occupancy import OccupancyMap
 from .scene import WorldSnapshot
 from .selfcollision import may_collide_row
@@ -135,14 +136,14 @@ class SphereScene:
         (the rest stay UNSURE). `parallel`: all of them on every core (large batches; not with order or stop)."""
         out = np.zeros(len(frames), dtype=np.int8)
         vol = volume or VoxelVolume.EMPTY
-        F = np.ascontiguousarray(frames)
+        F = kernel_array(frames)
         common = (
             self.local, self.radius, self.first, self.in_local, self.in_rad, self.in_first, self.ball_slot,
             self.ball_c, self.ball_r, self.gf, self.env_pad, self.map_pad, self.self_pad, self.env_mask, self.ob_kind,
             self.ob_inv, self.ob_dim, self.ob_id, self.ob_exact, self.octree_mask, vol.sat, vol.key_min, vol.inv_res,
             self.pair_a, self.pair_b, out,
         )  # fmt: skip
-        rows = (np.ascontiguousarray(Q, dtype=np.float64), self.tab_i, self.tab_f, self.tab)
+        rows = (kernel_array(Q), self.tab_i, self.tab_f, self.tab)
         if parallel and order is None and not stop:
             _classify_parallel(F, *rows, *common)
         else:

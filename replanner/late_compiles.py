@@ -1,0 +1,107 @@
+"""Numba kernels that meet new argument types after a stack is running: each is a warm-up that missed them.
+
+A first compile holds the GIL for up to seconds (LLVM runs under it): in the middle of a motion that silences
+perception and the monitor with it. Every kernel the hot path calls is compiled when the stack is built
+(the modules' `warm_up`); a call with other argument types (a strided array, a read-only one, another dtype)
+compiles a new specialization on first use, or loads it from numba's cache when another run compiled it: the next
+machine, with a cold cache, stalls. `watch()` names each compile in the log as it happens; `new_signatures()`
+finds every specialization added since, compiled or loaded.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+from numba.core import event
+from numba.core.dispatcher import Dispatcher
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LateCompile:
+    kernel: str  # module.function
+    signature: str  # numba's argument types
+    seconds: float
+    thread: str
+
+
+class _Listener(event.Listener):
+    def __init__(self):
+        self.compiles: list[LateCompile] = []
+        self._started: dict[tuple[int, int], float] = {}
+
+    def on_start(self, ev):
+        self._started[(threading.get_ident(), id(ev.data["dispatcher"]))] = time.perf_counter()
+
+    def on_end(self, ev):
+        t0 = self._started.pop((threading.get_ident(), id(ev.data["dispatcher"])), None)
+        fn = ev.data["dispatcher"].py_func
+        if not fn.__module__.startswith("replanner.") or t0 is None:
+            return  # numba's own helpers compile inside our kernels' compiles: the kernel is the one to name
+        c = LateCompile(
+            f"{fn.__module__}.{fn.__qualname__}",
+            str(ev.data.get("args")),
+            time.perf_counter() - t0,
+            threading.current_thread().name,
+        )
+        self.compiles.append(c)
+        log.warning(
+            "kernel %s compiled while running (%.2f s holding the GIL on thread %r) for %s: its module's warm_up "
+            "misses these argument types",
+            c.kernel,
+            c.seconds,
+            c.thread,
+            c.signature,
+        )
+
+
+_listener: _Listener | None = None
+_known: set[tuple[str, str]] | None = None
+_lock = threading.Lock()
+
+
+def _signatures() -> set[tuple[str, str]]:
+    """(module.function, argument types) of every specialization of the replanner kernels loaded so far."""
+    found = set()
+    for name, module in list(sys.modules.items()):
+        if not name.startswith("replanner.") or module is None:
+            continue
+        for obj in list(vars(module).values()):
+            if isinstance(obj, Dispatcher) and obj.py_func.__module__ == name:
+                found.update((f"{name}.{obj.py_func.__qualname__}", str(sig)) for sig in obj.signatures)
+    return found
+
+
+def watch() -> None:
+    """From now on, log every compile of a replanner kernel in this process, and remember the specializations
+    there are (idempotent; once built, a stack should need no new one)."""
+    global _listener, _known
+    with _lock:
+        if _listener is None:
+            _listener = _Listener()
+            event.register("numba:compile", _listener)
+            _known = _signatures()
+
+
+def new_signatures() -> list[tuple[str, str]]:
+    """The specializations added since `watch()` (compiled or loaded from the cache), each logged once."""
+    global _known
+    with _lock:
+        if _known is None:
+            return []
+        now = _signatures()
+        fresh = sorted(now - _known)
+        _known = now | _known
+    for kernel, sig in fresh:
+        log.warning("kernel %s met argument types its warm_up does not cover: %s", kernel, sig)
+    return fresh
+
+
+def seen() -> list[LateCompile]:
+    """The compiles logged since `watch()` (empty if it was never called)."""
+    return list(_listener.compiles) if _listener is not None else []
