@@ -244,6 +244,31 @@ def test_a_goal_refused_only_for_its_padding_says_how_far_and_plans_with_less(pa
             planner.plan(A, B, padding=bad)
 
 
+def test_a_thin_plate_the_coarse_search_cannot_see_is_never_crossed(panda, panda_cfg):
+    """The search checks motions at search_coarseness x the configured resolution whatever the padding (here 10 x
+    2 cm against a 4 mm plate); what the plan returns is still clear at the padding's resolution and in pybullet."""
+    from replanner.planning import padded_checker
+    from tests.oracle import HULL_MARGIN, PyBulletOracle
+
+    world = World(panda)
+    add_table(world)
+    world.add("plate", Box(size=(0.3, 0.004, 0.6)), make_transform((0.5, 0.0, 0.3)))
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    cfg = panda_cfg.planning.model_copy(update={"search_coarseness": 10.0})
+    planner = Planner.from_config(checker, cfg, seed=5)
+    assert not checker.path_valid(np.array([A, B]))
+    res = planner.plan(A, B, deadline=10.0, padding=0.002)
+    assert padded_checker(checker, 0.002).check_path(res.path).valid  # FCL at 4 mm
+    oracle = PyBulletOracle(panda)
+    for name, obj in world.objects.items():
+        oracle.add(name, obj.shape, obj.pose)
+    allowed = {tuple(p) for p in panda_cfg.collision.allowed_contacts}
+    Q, _ = checker.interpolate(res.path, resolution=0.0004)  # ten times finer than the padding's resolution
+    worst = min(oracle.set_q(q) or oracle.min_world_distance(0.05, allowed) for q in Q)
+    oracle.close()
+    assert worst > -HULL_MARGIN - 1e-4
+
+
 def test_the_standard_families_grasp_their_cans_close_and_clear(panda, panda_cfg):
     """Each standard family's goal holds its can between the fingers: clear of everything in pybullet, yet close."""
     import pybullet as pb

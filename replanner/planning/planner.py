@@ -139,8 +139,9 @@ class Planner:
             the deadline may still cut it short).
         shortcut_tries: random shortcuts tried after the search (at most; six misses in a row end it sooner).
         planner_range: planner step [rad]; None keeps OMPL's default.
-        search_coarseness: motions are checked this many times coarser while searching (the result is then
-            checked finely, and searched again finely if a thin obstacle slipped through).
+        search_coarseness: motions are checked this many times coarser than the checker's path resolution while
+            searching, whatever a plan's padding (the result is then checked at the padding's resolution, and
+            searched again, each time this many times finer, if a thin obstacle slipped through).
         retry_planner: the default planner's retries alternate with this one (None: the same planner again).
         seed: every plan starts from this seed (OMPL's generator and the shortcutting): the same problem gives the
             same path, alone or after others. None: fresh randomness. OMPL's generator is per process: planners
@@ -188,6 +189,7 @@ class Planner:
         self._rng = np.random.default_rng(seed)
         # motions are checked coarser while searching; the found path is checked at the full resolution
         self.search_coarseness = float(search_coarseness)
+        self._configured_resolution = checker.path_resolution
         self._search_resolution = self.search_coarseness * checker.path_resolution
         dof = self.robot.dof
         self.space = ob.RealVectorStateSpace(dof)
@@ -342,7 +344,9 @@ class Planner:
         other = planner_class(self.retry_planner) if planner is None and self.retry_planner else cls
         attempts, found, used = 0, False, None
         pdef = ss.getProblemDefinition()
-        self._search_resolution = self.search_coarseness * self.checker.path_resolution
+        # the search's resolution is the configured one's, coarsened: a small padding only tightens the final check
+        fine = self.checker.path_resolution
+        self._search_resolution = self.search_coarseness * max(fine, self._configured_resolution)
         while not found:
             remaining = t_end - time.perf_counter()
             if remaining <= 0 or (cancel is not None and cancel.is_set()):
@@ -366,8 +370,8 @@ class Planner:
                 self._attempt = None
             found = bool(status) and pdef.hasExactSolution()
             if found and not self.checker.path_valid(self._solution(ss)):
-                found = False  # a thin obstacle slipped between the coarse search checks: search finely
-                self._search_resolution = self.checker.path_resolution
+                found = False  # a thin obstacle slipped between the coarse search checks: search finer
+                self._search_resolution = max(fine, self._search_resolution / self.search_coarseness)
             if not found:
                 ss.clear()  # a fresh tree: the retry explores from new random samples
         t_search = time.perf_counter()
