@@ -14,6 +14,8 @@ import logging
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 from numba.core import event
@@ -41,8 +43,8 @@ class _Listener(event.Listener):
     def on_end(self, ev):
         t0 = self._started.pop((threading.get_ident(), id(ev.data["dispatcher"])), None)
         fn = ev.data["dispatcher"].py_func
-        if not fn.__module__.startswith("replanner.") or t0 is None:
-            return  # numba's own helpers compile inside our kernels' compiles: the kernel is the one to name
+        if not fn.__module__.startswith("replanner.") or t0 is None or getattr(_building, "depth", 0):
+            return  # numba's own helpers compile inside our kernels' compiles; a stack being built warms up
         c = LateCompile(
             f"{fn.__module__}.{fn.__qualname__}",
             str(ev.data.get("args")),
@@ -63,6 +65,17 @@ class _Listener(event.Listener):
 _listener: _Listener | None = None
 _known: set[tuple[str, str]] | None = None
 _lock = threading.Lock()
+_building = threading.local()
+
+
+@contextmanager
+def building() -> Iterator[None]:
+    """Compiles on this thread inside the block are warm-ups (a stack being built), not late."""
+    _building.depth = getattr(_building, "depth", 0) + 1
+    try:
+        yield
+    finally:
+        _building.depth -= 1
 
 
 def _signatures() -> set[tuple[str, str]]:
@@ -77,15 +90,18 @@ def _signatures() -> set[tuple[str, str]]:
     return found
 
 
-def watch() -> None:
-    """From now on, log every compile of a replanner kernel in this process, and remember the specializations
-    there are (idempotent; once built, a stack should need no new one)."""
+def watch(start: bool = True) -> None:
+    """From now on, log every compile of a replanner kernel in this process outside `building()`, and remember the
+    specializations there are now: called after each stack a process builds, whose warm-ups are not late (start:
+    False only remembers, if watching has started)."""
     global _listener, _known
     with _lock:
         if _listener is None:
+            if not start:
+                return
             _listener = _Listener()
             event.register("numba:compile", _listener)
-            _known = _signatures()
+        _known = (_known or set()) | _signatures()
 
 
 def new_signatures() -> list[tuple[str, str]]:

@@ -26,8 +26,9 @@ def serve(conn: Connection, cancel_conn: Connection) -> None:
 
     cfg_data, seed = conn.recv()
     cfg = parse_config(cfg_data)
-    stack = build_stack(cfg, seed=seed, static=(), cameras=False)
-    stack.robot.self_clearance_tables()
+    with late_compiles.building():
+        stack = build_stack(cfg, seed=seed, static=(), cameras=False)
+        stack.robot.self_clearance_tables()
     late_compiles.watch()  # a compile from here on eats a replan's deadline
     world = stack.world
     cancel = threading.Event()

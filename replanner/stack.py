@@ -81,6 +81,13 @@ def build_stack(
             controller.planning_process, else "thread".
         clock: the controller's clock [s], shared with the robot and the sensors.
     """
+    with late_compiles.building():  # the warm-ups compile here: that is when they should
+        stack = _wire(cfg, robot, static, seed, cameras, execute, plan_in, clock)
+    late_compiles.watch(start=stack.controller is not None)  # a compile from here on stalls a running arm
+    return stack
+
+
+def _wire(cfg, robot, static, seed, cameras, execute, plan_in, clock) -> Stack:
     robot = robot or RobotModel.from_config(cfg.robot)
     world = World(robot)
     for name, shape, pose in scene_from_config(cfg) if static is None else static:
@@ -132,5 +139,4 @@ def build_stack(
     )
     if stack.perception is not None:
         stack.perception.subscribe(stack.controller.on_map)
-    late_compiles.watch()  # every kernel is compiled by now: a compile from here on stalls a running arm
     return stack

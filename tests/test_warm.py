@@ -42,7 +42,8 @@ if __name__ == "__main__":
     cfg = load_config("panda")
     out = reaction.run(cfg, runs=2, seed=3)  # boxes dropped on the path: map, monitor, replan, splice
     edit = scene_edit.run(cfg, runs=1, seed=3)  # an object added: the static scene's layers
-    statuses = [r["status"] for r in out["rows"]] + [r["status"] for r in edit["rows"]]
+    swerved = reaction.run(cfg.override({"controller": {"reaction": "replan_reflex"}}), runs=1, seed=3)  # the reflex
+    statuses = [r["status"] for x in (out, edit, swerved) for r in x["rows"]]
     print(json.dumps({"new": late_compiles.new_signatures(), "statuses": statuses}))
 """
 
@@ -50,6 +51,7 @@ if __name__ == "__main__":
 def test_a_running_stack_meets_no_argument_types_its_warm_ups_missed(tmp_path):
     # Fails on the old code: shadow_cells got a strided camera origin, count_cells read-only keys and the sphere
     # layer a read-only Q, each compiled mid-motion on a cold cache (perception silent for 1 s, the arm in the box).
+    # Replans, a scene edit and a swerve: each path a running stack takes to its kernels.
     script = tmp_path / "run.py"  # a file, not -c: the sim's renderer is a spawned process that imports __main__
     script.write_text(RUN)
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=900)
