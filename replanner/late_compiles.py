@@ -16,7 +16,6 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 
 from numba.core import event
 from numba.core.dispatcher import Dispatcher
@@ -24,17 +23,8 @@ from numba.core.dispatcher import Dispatcher
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True)
-class LateCompile:
-    kernel: str  # module.function
-    signature: str  # numba's argument types
-    seconds: float
-    thread: str
-
-
 class _Listener(event.Listener):
     def __init__(self):
-        self.compiles: list[LateCompile] = []
         self._started: dict[tuple[int, int], float] = {}
 
     def on_start(self, ev):
@@ -45,25 +35,19 @@ class _Listener(event.Listener):
         fn = ev.data["dispatcher"].py_func
         if not fn.__module__.startswith("replanner.") or t0 is None or getattr(_building, "depth", 0):
             return  # numba's own helpers compile inside our kernels' compiles; a stack being built warms up
-        c = LateCompile(
-            f"{fn.__module__}.{fn.__qualname__}",
-            str(ev.data.get("args")),
+        log.warning(
+            "kernel %s.%s compiled while running (%.2f s holding the GIL on thread %r) for %s: its module's warm_up "
+            "misses these argument types",
+            fn.__module__,
+            fn.__qualname__,
             time.perf_counter() - t0,
             threading.current_thread().name,
-        )
-        self.compiles.append(c)
-        log.warning(
-            "kernel %s compiled while running (%.2f s holding the GIL on thread %r) for %s: its module's warm_up "
-            "misses these argument types",
-            c.kernel,
-            c.seconds,
-            c.thread,
-            c.signature,
+            ev.data.get("args"),
         )
 
 
 _listener: _Listener | None = None
-_known: set[tuple[str, str]] | None = None
+_known: dict[str, tuple[Dispatcher, int]] = {}  # kernel -> (its dispatcher, specializations it had)
 _lock = threading.Lock()
 _building = threading.local()
 
@@ -78,15 +62,15 @@ def building() -> Iterator[None]:
         _building.depth -= 1
 
 
-def _signatures() -> set[tuple[str, str]]:
-    """(module.function, argument types) of every specialization of the replanner kernels loaded so far."""
-    found = set()
+def _kernels() -> dict[str, Dispatcher]:
+    """The replanner kernels imported so far, by module.function."""
+    found = {}
     for name, module in list(sys.modules.items()):
         if not name.startswith("replanner.") or module is None:
             continue
         for obj in list(vars(module).values()):
             if isinstance(obj, Dispatcher) and obj.py_func.__module__ == name:
-                found.update((f"{name}.{obj.py_func.__qualname__}", str(sig)) for sig in obj.signatures)
+                found[f"{name}.{obj.py_func.__qualname__}"] = obj
     return found
 
 
@@ -94,30 +78,26 @@ def watch(start: bool = True) -> None:
     """From now on, log every compile of a replanner kernel in this process outside `building()`, and remember the
     specializations there are now: called after each stack a process builds, whose warm-ups are not late (start:
     False only remembers, if watching has started)."""
-    global _listener, _known
+    global _listener
     with _lock:
         if _listener is None:
             if not start:
                 return
             _listener = _Listener()
             event.register("numba:compile", _listener)
-        _known = (_known or set()) | _signatures()
+        _known.update((k, (d, len(d.signatures))) for k, d in _kernels().items())
 
 
 def new_signatures() -> list[tuple[str, str]]:
-    """The specializations added since `watch()` (compiled or loaded from the cache), each logged once."""
-    global _known
+    """The specializations added since `watch()` (compiled or loaded from the cache), each logged once; counts
+    only, microseconds: the planning child asks after every job."""
+    fresh = []
     with _lock:
-        if _known is None:
-            return []
-        now = _signatures()
-        fresh = sorted(now - _known)
-        _known = now | _known
+        for kernel, (d, n) in _known.items():
+            sigs = d.signatures
+            if len(sigs) > n:
+                fresh += [(kernel, str(sig)) for sig in sigs[n:]]
+                _known[kernel] = (d, len(sigs))
     for kernel, sig in fresh:
         log.warning("kernel %s met argument types its warm_up does not cover: %s", kernel, sig)
-    return fresh
-
-
-def seen() -> list[LateCompile]:
-    """The compiles logged since `watch()` (empty if it was never called)."""
-    return list(_listener.compiles) if _listener is not None else []
+    return sorted(fresh)

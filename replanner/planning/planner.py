@@ -189,7 +189,6 @@ class Planner:
         self._rng = np.random.default_rng(seed)
         # motions are checked coarser while searching; the found path is checked at the full resolution
         self.search_coarseness = float(search_coarseness)
-        self._configured_resolution = checker.path_resolution
         self._search_resolution = self.search_coarseness * checker.path_resolution
         dof = self.robot.dof
         self.space = ob.RealVectorStateSpace(dof)
@@ -344,9 +343,9 @@ class Planner:
         other = planner_class(self.retry_planner) if planner is None and self.retry_planner else cls
         attempts, found, used = 0, False, None
         pdef = ss.getProblemDefinition()
-        # the search's resolution is the configured one's, coarsened: a small padding only tightens the final check
+        # the search's resolution is the configured checker's, coarsened: a small padding only tightens the final check
         fine = self.checker.path_resolution
-        self._search_resolution = self.search_coarseness * max(fine, self._configured_resolution)
+        self._search_resolution = self.search_coarseness * self.paddings.checker.path_resolution
         while not found:
             remaining = t_end - time.perf_counter()
             if remaining <= 0 or (cancel is not None and cancel.is_set()):
