@@ -9,6 +9,7 @@ import pytest
 from replanner.bench.scenes import add_table, clutter_map
 from replanner.world.collision import OCTREE, CollisionChecker
 from replanner.world.geometry import Box, Cylinder, Sphere, padded_geometry, to_fcl
+from replanner.world.kernels import boxes_meet
 from replanner.world.scene import World
 from replanner.world.transforms import make_transform
 from tests.oracle import HULL_MARGIN, PyBulletOracle
@@ -182,6 +183,39 @@ def test_broadphase_and_tables_never_change_a_verdict(panda, panda_cfg):
     assert 0.1 < ref.mean() < 0.9
     np.testing.assert_array_equal(batch, ref)
     np.testing.assert_array_equal(single, ref)
+
+
+def test_oriented_box_test_never_separates_boxes_fcl_finds_touching():
+    """The broadphase's separating axis test against FCL's box-box verdict on random oriented boxes (many of them
+    with parallel faces and edges, where a cross axis vanishes): it never calls apart two boxes that touch, and it
+    does rule out most pairs whose world-aligned boxes overlap."""
+    rng = np.random.default_rng(11)
+    n = 4000
+    quats = rng.normal(size=(2, n, 4))
+    quats[:, ::4] = (0.0, 0.0, 0.0, 1.0)  # axis-aligned pairs: parallel edges on every axis
+    half_a, half_b = rng.uniform(0.01, 0.3, (n, 3)), rng.uniform(0.01, 0.3, (n, 3))
+    T = np.stack([make_transform(rng.uniform(-0.6, 0.6, 3), q) for q in quats[0]])[:, None]
+    obs = np.stack([make_transform(rng.uniform(-0.6, 0.6, 3), q) for q in quats[1]])
+    center = rng.uniform(-0.05, 0.05, (n, 3))
+    meets = np.empty((1, 1, 1), bool)
+    touching = apart_found = aligned_overlaps = 0
+    for i in range(n):
+        R, c = T[i, 0, :3, :3], T[i, 0, :3, :3] @ center[i] + T[i, 0, :3, 3]
+        lo, hi = (c - np.abs(R) @ half_a[i])[None, None, None], (c + np.abs(R) @ half_a[i])[None, None, None]
+        Ro, co = obs[i, :3, :3], obs[i, :3, 3]
+        olo, ohi = (co - np.abs(Ro) @ half_b[i])[None], (co + np.abs(Ro) @ half_b[i])[None]
+        boxes_meet(T[i : i + 1], center[i : i + 1], half_a[i : i + 1], lo, hi, np.ones((1, 1), bool), olo, ohi,
+                   Ro[None].copy(), co[None].copy(), half_b[i : i + 1], meets)  # fmt: skip
+        a = fcl.CollisionObject(fcl.Box(*(2 * half_a[i])), fcl.Transform(R, c))
+        b = fcl.CollisionObject(fcl.Box(*(2 * half_b[i])), fcl.Transform(Ro, co))
+        hit = fcl.collide(a, b, fcl.CollisionRequest()) > 0
+        assert meets[0, 0, 0] or not hit, i
+        touching += hit
+        overlap = bool(np.all(lo[0, 0, 0] <= ohi[0]) and np.all(hi[0, 0, 0] >= olo[0]))
+        aligned_overlaps += overlap
+        apart_found += overlap and not meets[0, 0, 0]
+    assert touching > 0.1 * n
+    assert apart_found > 0.2 * (aligned_overlaps - touching)  # the test is not the world-aligned one again
 
 
 def test_self_collision_folded_is_invalid_home_is_valid(profile):

@@ -54,6 +54,13 @@ def test_what_the_layer_calls_free_fcl_and_pybullet_call_free(profile):
     assert not np.any(clear & ~valid)  # never free where FCL finds a contact
     assert not np.any(certain & valid) and certain.sum() > 0.3 * (~valid).sum()  # most contacts need no FCL
     np.testing.assert_array_equal(fast.is_valid_batch(Q), valid)
+    np.testing.assert_array_equal([fast.is_valid(q) for q in Q[:2000]], valid[:2000])  # the compiled call alone
+    B = np.clip(Q[:300] + rng.normal(0, 0.2, (300, robot.dof)), robot.limits.lower, robot.limits.upper)
+    B[::10, 0] = robot.limits.upper[0] + 0.1  # past a limit: refused whatever the spheres say
+    res = cfg.collision.path_resolution
+    motions = [fast.motion_valid(a, b, res) for a, b in zip(Q[:300], B)]
+    assert motions == [checker.path_valid(np.array([a, b])) for a, b in zip(Q[:300], B)]
+    assert 0 < sum(motions) < 300
     oracle = PyBulletOracle(robot)
     for name, o in world.objects.items():
         oracle.add(name, o.shape, o.pose)

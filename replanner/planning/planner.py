@@ -102,7 +102,7 @@ class _BatchMotionValidator(ob.MotionValidator):
             return False
         if p._attempt is not None:
             p._attempt.count()
-        return p.checker.path_valid(np.array([p._to_np(s1), p._to_np(s2)]), p._search_resolution)
+        return p._motion_ok(p._to_np(s1), p._to_np(s2), p._search_resolution)
 
 
 _LIVE: weakref.WeakSet = weakref.WeakSet()
@@ -237,6 +237,13 @@ class Planner:
         """The checker the search asks: the sphere layer in front of FCL, or FCL alone."""
         return FastChecker(checker) if self.layer == "spheres" else checker
 
+    def _motion_ok(self, a: np.ndarray, b: np.ndarray, resolution: float | None = None) -> bool:
+        """The straight motion a -> b, checked every `resolution` [m] (None: the checker's path resolution)."""
+        c = self.checker
+        if isinstance(c, FastChecker):  # the compiled call, without a path check's input checks
+            return c.motion_valid(a, b, c.path_resolution if resolution is None else resolution)
+        return c.path_valid(np.array([a, b]), resolution)
+
     # ------------------------------------------------------------------ conversions
     def _to_np(self, s) -> np.ndarray:
         return np.array([s[i] for i in range(self.robot.dof)])
@@ -341,12 +348,14 @@ class Planner:
         ss.setStartAndGoalStates(self._alloc(start), self._alloc(q_goal))
         # the default planner's retries alternate with the retry planner: planners fail on different problems
         other = planner_class(self.retry_planner) if planner is None and self.retry_planner else cls
-        attempts, found, used = 0, False, None
+        attempts, used = 0, None
         pdef = ss.getProblemDefinition()
         # the search's resolution is the configured checker's, coarsened: a small padding only tightens the final check
         fine = self.checker.path_resolution
         self._search_resolution = self.search_coarseness * self.paddings.checker.path_resolution
-        while not found:
+        W = raw_path = None
+        simplify_time = 0.0
+        while W is None:
             remaining = t_end - time.perf_counter()
             if remaining <= 0 or (cancel is not None and cancel.is_set()):
                 break
@@ -367,30 +376,39 @@ class Planner:
                 status = ss.solve(ptc)
             finally:
                 self._attempt = None
-            found = bool(status) and pdef.hasExactSolution()
-            if found and not self.checker.path_valid(self._solution(ss)):
-                found = False  # a thin obstacle slipped between the coarse search checks: search finer
-                self._search_resolution = max(fine, self._search_resolution / self.search_coarseness)
-            if not found:
+            if bool(status) and pdef.hasExactSolution():
+                raw_path = self._solution(ss)
+                t_simp = time.perf_counter()
+                W = self._simplified(raw_path, t_end)
+                simplify_time += time.perf_counter() - t_simp
+                if W is None:  # a thin obstacle slipped between the coarse search checks: search finer
+                    self._search_resolution = max(fine, self._search_resolution / self.search_coarseness)
+            if W is None:
                 ss.clear()  # a fresh tree: the retry explores from new random samples
-        t_search = time.perf_counter()
-        search_time = t_search - t_searching
+        search_time = time.perf_counter() - t_searching - simplify_time
         if cancel is not None and cancel.is_set():
-            raise PlanningCanceled(f"planning canceled after {t_search - t_begin:.3f} s")
-        if not found:
+            raise PlanningCanceled(f"planning canceled after {time.perf_counter() - t_begin:.3f} s")
+        if W is None:
             raise NoSolution(
                 f"{name} found no path in {deadline:.3f} s ({attempts} attempts); give a longer deadline, "
                 "another planner, or check that the goal is reachable"
             )
-        W = self._solution(ss)
-        raw = len(W)
-        t_simp = time.perf_counter()
-        W = self.shortcut(W, t_end)
+        t_confirm = time.perf_counter()
         self._confirm(W)
-        simplify_time = time.perf_counter() - t_simp
+        simplify_time += time.perf_counter() - t_confirm
         total = time.perf_counter() - t_begin
         name = next(k for k, v in PLANNERS.items() if v is used)
-        return PlanResult(W, q_goal, name, attempts, search_time, simplify_time, total, raw_waypoints=raw)
+        return PlanResult(W, q_goal, name, attempts, search_time, simplify_time, total, raw_waypoints=len(raw_path))
+
+    def _simplified(self, raw: np.ndarray, t_end: float) -> np.ndarray | None:
+        """The search's path shortcut at the search's resolution, then checked at the full one; if a shortcut slipped
+        through a thin obstacle, shortcut at the full resolution. None: the search's own path slipped through one."""
+        W = self.shortcut(raw, t_end, self._search_resolution)
+        if self.checker.path_valid(W):
+            return W
+        if not self.checker.path_valid(raw):
+            return None
+        return self.shortcut(raw, t_end)
 
     def _confirm(self, W: np.ndarray) -> None:
         """FCL's own check of the path a plan returns, at path resolution (the sphere layer only ever clears)."""
@@ -403,12 +421,13 @@ class Planner:
         return np.array([self._to_np(path.getState(i)) for i in range(path.getStateCount())])
 
     # ------------------------------------------------------------------ simplification
-    def shortcut(self, W: np.ndarray, t_end: float = math.inf) -> np.ndarray:
-        """Fewer, shorter segments: skip waypoints, try up to `shortcut_tries` random shortcuts, skip again.
+    def shortcut(self, W: np.ndarray, t_end: float = math.inf, resolution: float | None = None) -> np.ndarray:
+        """Fewer, shorter segments: skip waypoints, try up to `shortcut_tries` random shortcuts, skip again; each
+        shortcut checked every `resolution` [m] (None: the checker's path resolution).
 
         Bounded by counts; `t_end` (a perf_counter time, the plan's deadline) may only cut it short.
         """
-        W = self._skip_waypoints(W, t_end)
+        W = self._skip_waypoints(W, t_end, resolution)
         misses = tries = 0
         while tries < self.shortcut_tries and len(W) > 2 and misses < 6 and time.perf_counter() < t_end:
             tries += 1
@@ -421,14 +440,14 @@ class Planner:
                 continue
             pa = W[ia] + (a - acc[ia]) / seg[ia] * (W[ia + 1] - W[ia])
             pb = W[ib] + (b - acc[ib]) / seg[ib] * (W[ib + 1] - W[ib])
-            if self.checker.path_valid(np.array([pa, pb])):
+            if self._motion_ok(pa, pb, resolution):
                 W = np.vstack([W[: ia + 1], pa, pb, W[ib + 1 :]])
                 misses = 0
             else:
                 misses += 1
-        return self._skip_waypoints(W, t_end)
+        return self._skip_waypoints(W, t_end, resolution)
 
-    def _skip_waypoints(self, W: np.ndarray, t_end: float = math.inf) -> np.ndarray:
+    def _skip_waypoints(self, W: np.ndarray, t_end: float = math.inf, resolution: float | None = None) -> np.ndarray:
         """From each kept waypoint, go straight to the farthest later one that is reachable in a straight line.
 
         Past `t_end` (the plan's deadline) the rest of the path is kept as it is: valid, only longer."""
@@ -440,7 +459,7 @@ class Planner:
                 out.extend(W[i + 1 :])
                 break
             j = len(W) - 1
-            while j > i + 1 and not self.checker.path_valid(np.array([W[i], W[j]])):
+            while j > i + 1 and not self._motion_ok(W[i], W[j], resolution):
                 j -= 1
             out.append(W[j])
             i = j

@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from .collision_scene import OCTREE, CollisionScene, ThreadObjects
 from .geometry import Shape
-from .kernels import body_boxes
+from .kernels import body_boxes, boxes_meet
 from .robot import RobotModel
 from .scene import World, WorldSnapshot
 
@@ -227,7 +227,7 @@ class CollisionChecker:
 
         robot_pairs: False leaves out the robot's own link pairs (attachments against links stay in)."""
         lo, hi = self._aabbs(T, scene.box_c, scene.box_h)
-        elo, ehi = lo[:, 0], hi[:, 0]
+        elo = lo[:, 0]
         occ = snap.occupancy
         if occ is not None and len(occ):
             cand_oct = occ.any_in_boxes(lo[:, 2], hi[:, 2]) & scene.octree_mask
@@ -236,12 +236,9 @@ class CollisionChecker:
         if octree_only:
             return cand_oct, np.zeros(elo.shape[:2] + (0,), dtype=bool), np.zeros((len(T), 0), dtype=bool)
         if len(scene.obstacles):
-            # per axis: np.all over a trailing axis of 3 is several times slower
-            cand_obj = scene.env_mask & (elo[:, :, None, 0] <= scene.obs_hi[:, 0])
-            for ax in range(3):
-                if ax:
-                    cand_obj &= elo[:, :, None, ax] <= scene.obs_hi[:, ax]
-                cand_obj &= ehi[:, :, None, ax] >= scene.obs_lo[:, ax]
+            cand_obj = np.empty(elo.shape[:2] + (len(scene.obstacles),), dtype=bool)
+            boxes_meet(T, scene.box_c[0], scene.box_h[0], lo, hi, scene.env_mask, scene.obs_lo, scene.obs_hi,
+                       scene.obs_R, scene.obs_c, scene.obs_h, cand_obj)  # fmt: skip
         else:
             cand_obj = np.zeros(elo.shape[:2] + (0,), dtype=bool)
         cand_self = np.zeros((len(T), len(scene.pair_a)), dtype=bool)

@@ -132,7 +132,7 @@ class CollisionScene:
 
         # static obstacles
         self.obstacles = []
-        lo, hi = [], []
+        lo, hi, rot, mid, half = [], [], [], [], []
         for o in snap.objects.values():
             g, (c, h) = padded_geometry(o.shape, 0.0)
             self.obstacles.append((o.name, fcl.CollisionObject(g, fcl.Transform(o.pose[:3, :3], o.pose[:3, 3]))))
@@ -140,9 +140,16 @@ class CollisionScene:
             wc, wh = R @ c + o.pose[:3, 3], np.abs(R) @ h
             lo.append(wc - wh)
             hi.append(wc + wh)
+            rot.append(R)
+            mid.append(wc)
+            half.append(h)
         O = len(self.obstacles)
         self.obs_lo = np.array(lo).reshape(O, 3)
         self.obs_hi = np.array(hi).reshape(O, 3)
+        # the same boxes oriented with their objects (the broadphase's second, tighter test)
+        self.obs_R = np.ascontiguousarray(np.array(rot, dtype=np.float64).reshape(O, 3, 3))
+        self.obs_c = np.ascontiguousarray(np.array(mid, dtype=np.float64).reshape(O, 3))
+        self.obs_h = np.ascontiguousarray(np.array(half, dtype=np.float64).reshape(O, 3))
         self.env_mask = np.ones((B, O), dtype=bool)
         self.octree_mask = np.ones(B, dtype=bool)
         support = {f"attached:{a.name}": a.support for a in snap.attachments.values()}

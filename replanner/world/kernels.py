@@ -69,6 +69,56 @@ def body_boxes(T, center, half, lo, hi):
 
 
 @numba.njit(cache=True, nogil=True)
+def boxes_meet(T, center, half, lo, hi, mask, obs_lo, obs_hi, obs_R, obs_c, obs_h, cand):
+    """cand[n, b, o]: body b's box (local centre center[b], half extents half[b] at pose T[n, b]; world-aligned
+    bounds lo[n, 0, b], hi[n, 0, b] of body_boxes) may meet obstacle o's box (world-aligned obs_lo, obs_hi;
+    rotation obs_R[o], centre obs_c[o], half extents obs_h[o]) and mask[b, o] asks. The world-aligned boxes
+    first, then the separating axis test of the two oriented boxes (Ericson, Real-Time Collision Detection
+    4.4.1), 1e-9 m in their favour."""
+    R, A = np.empty((3, 3)), np.empty((3, 3))
+    t, w = np.empty(3), np.empty(3)
+    for n in range(cand.shape[0]):
+        for b in range(cand.shape[1]):
+            Tb = T[n, b]
+            for i in range(3):
+                w[i] = Tb[i, 3] + Tb[i, 0] * center[b, 0] + Tb[i, 1] * center[b, 1] + Tb[i, 2] * center[b, 2]
+            e = half[b]
+            for o in range(cand.shape[2]):
+                cand[n, b, o] = mask[b, o]
+                for i in range(3):
+                    if lo[n, 0, b, i] > obs_hi[o, i] or hi[n, 0, b, i] < obs_lo[o, i]:
+                        cand[n, b, o] = False
+                if not cand[n, b, o]:
+                    continue
+                Ro, f = obs_R[o], obs_h[o]
+                for i in range(3):  # the obstacle's axes and centre in the body box's frame
+                    t[i] = Tb[0, i] * (obs_c[o, 0] - w[0]) + Tb[1, i] * (obs_c[o, 1] - w[1]) + Tb[2, i] * (
+                        obs_c[o, 2] - w[2])  # fmt: skip
+                    for j in range(3):
+                        R[i, j] = Tb[0, i] * Ro[0, j] + Tb[1, i] * Ro[1, j] + Tb[2, i] * Ro[2, j]
+                        A[i, j] = abs(R[i, j]) + 1e-12  # parallel edges make a cross axis vanish
+                apart = False
+                for i in range(3):
+                    if abs(t[i]) > e[i] + f[0] * A[i, 0] + f[1] * A[i, 1] + f[2] * A[i, 2] + 1e-9:
+                        apart = True
+                for j in range(3):
+                    s = abs(t[0] * R[0, j] + t[1] * R[1, j] + t[2] * R[2, j])
+                    if s > e[0] * A[0, j] + e[1] * A[1, j] + e[2] * A[2, j] + f[j] + 1e-9:
+                        apart = True
+                for i in range(3):
+                    i1, i2 = (i + 1) % 3, (i + 2) % 3
+                    for j in range(3):
+                        j1, j2 = (j + 1) % 3, (j + 2) % 3
+                        ra = e[i1] * A[i2, j] + e[i2] * A[i1, j]
+                        rb = f[j1] * A[i, j2] + f[j2] * A[i, j1]
+                        if abs(t[i2] * R[i1, j] - t[i1] * R[i2, j]) > ra + rb + 1e-9:
+                            apart = True
+                if apart:
+                    cand[n, b, o] = False
+    return cand
+
+
+@numba.njit(cache=True, nogil=True)
 def boxes_hit_table(lo, hi, origin, inv_cell, n, sat, out):
     """out[i] = the summed-volume table `sat` ((n + 1) cells a side, flat) counts an occupied voxel in a cell
     that box [lo[i], hi[i]] (M, 3) overlaps; `origin` is the table's corner, cells 1 / inv_cell a side."""
@@ -123,6 +173,9 @@ def warm_up() -> None:
     body_poses(frames, np.zeros(1, np.int64), np.eye(4)[None].copy(), np.empty((1, 1, 4, 4)))
     box = np.zeros((1, 1, 3))
     body_boxes(eye, box, box, np.empty((1, 1, 1, 3)), np.empty((1, 1, 1, 3)))
+    flat, bounds = np.zeros((1, 3)), np.zeros((1, 1, 1, 3))
+    boxes_meet(eye, flat, flat, bounds, bounds, np.ones((1, 1), bool), flat, flat, np.eye(3)[None].copy(), flat, flat,
+               np.ones((1, 1, 1), bool))  # fmt: skip
     boxes_hit_table(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(3), 1.0, np.ones(3, np.int64),
                     np.zeros(8, np.int32), np.empty(1, bool))  # fmt: skip
     octree_stream(np.zeros(1, np.uint64), 16)  # the first map's octree and broadphase grid

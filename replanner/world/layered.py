@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .convex_pass import ConvexPass, decide_batch
-from .motion_pass import motion_verdicts
+from .motion_pass import BoundMotion
 from .sphere_layer import CONTACT, FREE, UNSURE, SphereScene, VoxelVolume
 
 
@@ -23,7 +23,8 @@ class FastChecker:
     def __init__(self, checker, convex: bool = True):
         self.checker = checker
         self.convex = convex
-        self._cache: tuple | None = None  # (world version, map, SphereScene, VoxelVolume, ConvexPass, reach)
+        # (world version, map, SphereScene, VoxelVolume, ConvexPass, reach, BoundMotion)
+        self._cache: tuple | None = None
         lim = checker.robot.limits
         self._lo, self._hi = lim.lower - 1e-9, lim.upper + 1e-9
 
@@ -56,7 +57,9 @@ class FastChecker:
             else:
                 layer, convex = c[2], c[4]
             vol = VoxelVolume.of(snap.occupancy) if c is None or c[1] is not snap.occupancy else c[3]
-            c = self._cache = (snap.version, snap.occupancy, layer, vol, convex, scene.reach)
+            limits = (self._lo, self._hi) if self.checker.check_limits else (None, None)
+            motion = BoundMotion(self.checker.robot, layer, vol, *limits, scene.reach)
+            c = self._cache = (snap.version, snap.occupancy, layer, vol, convex, scene.reach, motion)
         return c
 
     def _rows(self, Q) -> np.ndarray:
@@ -86,7 +89,8 @@ class FastChecker:
         return out
 
     def is_valid(self, q) -> bool:
-        return bool(self.is_valid_batch(np.asarray(q, dtype=float)[None])[0])
+        q = self._rows(np.asarray(q, dtype=float)[None])[0]
+        return self.motion_valid(q, q, 0.0)
 
     def path_valid(self, waypoints, resolution: float | None = None) -> bool:
         """As `checker.path_valid`: every 8th interpolated configuration first (a contact is usually found early);
@@ -115,21 +119,18 @@ class FastChecker:
         return True
 
     def _motion_valid(self, a: np.ndarray, b: np.ndarray, resolution: float | None) -> bool:
-        """One straight motion: the spheres in one compiled call, then the convex pass and FCL on what is left."""
-        if (
-            self.checker.check_limits
-            and not ((a >= self._lo) & (a <= self._hi) & (b >= self._lo) & (b <= self._hi)).all()
-        ):
-            return False
+        return self.motion_valid(a, b, self.checker.path_resolution if resolution is None else float(resolution))
+
+    def motion_valid(self, a: np.ndarray, b: np.ndarray, resolution: float) -> bool:
+        """The straight motion a -> b (float64 (dof,), finite: a planner's own states) checked every `resolution`
+        [m] (0: a alone): the spheres in one compiled call, then the convex pass and FCL on what is left."""
         c = self._layers()
-        res = self.checker.path_resolution if resolution is None else float(resolution)
-        steps = max(1, int(np.ceil(np.abs(b - a) @ c[5] / res)))
-        v, unsure = motion_verdicts(self.checker.robot, c[2], c[3], a, b, steps)
+        v, unsure, steps = c[6](a, b, resolution)
         if v < 0:
             return False
         if not len(unsure):
             return True
-        Q = a + (unsure / steps)[:, None] * (b - a)
+        Q = a + (unsure / max(steps, 1))[:, None] * (b - a)
         Q[unsure == steps] = b
         verdict = np.zeros(len(Q), np.int8)
         self._second(c, self.checker.robot.frames(Q), verdict, np.arange(len(Q)), stop=True)
