@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -267,6 +269,26 @@ def test_a_thin_plate_the_coarse_search_cannot_see_is_never_crossed(panda, panda
     worst = min(oracle.set_q(q) or oracle.min_world_distance(0.05, allowed) for q in Q)
     oracle.close()
     assert worst > -HULL_MARGIN - 1e-4
+
+
+def test_a_shortcut_the_coarse_check_lets_through_a_thin_plate_is_shortcut_again_finer(panda, panda_cfg):
+    """Shortcuts are checked at the search's coarse resolution; one that crosses a 4 mm plate between two coarse
+    checks fails the full-resolution check of the result, and the path is shortcut again at the full resolution."""
+    from replanner.planning import padded_checker
+
+    world = World(panda)
+    add_table(world)
+    world.add("plate", Box(size=(0.3, 0.004, 0.6)), make_transform((0.5, 0.0, 0.3)))
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    planner = Planner.from_config(checker, panda_cfg.planning, seed=5)
+    fine = padded_checker(checker, 0.002)
+    detour = planner.plan(A, B, deadline=10.0, padding=0.002).path
+    planner.checker = planner.paddings.get(0.002)  # as plan() does for a padding
+    planner._search_resolution = 0.4  # coarse enough to step over the plate
+    coarse = planner.shortcut(detour, math.inf, planner._search_resolution)
+    assert not fine.path_valid(coarse)  # the coarse shortcut crossed the plate
+    W = planner._simplified(detour, math.inf)
+    assert fine.check_path(W).valid and len(W) <= len(detour)
 
 
 def test_the_standard_families_grasp_their_cans_close_and_clear(panda, panda_cfg):
