@@ -333,6 +333,7 @@ def bench_reaction(
         ("map_to_pending_ms", "map -> PENDING"),
         ("pending_to_spliced_ms", "PENDING -> spliced (decided)"),
         ("pending_to_landed_ms", "PENDING -> new trajectory takes over"),
+        ("replan_plan_ms", "the plan itself (within PENDING -> spliced)"),
     ]
     Console().print(_stats_table(title, "interval", rows, result, "{:.0f}"))
     Console().print(

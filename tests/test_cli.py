@@ -110,6 +110,8 @@ def test_bench_reaction_json_cameras_render_in_their_own_process():
     for row in r["rows"]:  # each box would have met the arm's first link within the stated time (pybullet)
         assert row["time_to_contact_s"] <= hi
         assert row["status"] in ("succeeded", "failed") and (row["braked"] or row["pending_to_spliced_ms"] is not None)
+        if row["pending_to_spliced_ms"] is not None:  # the plan is a part of the replan's time
+            assert 0 < row["replan_plan_ms"] < row["pending_to_spliced_ms"]
 
 
 # --------------------------------------------------------------------------------------------- layout

@@ -92,10 +92,9 @@ def run(
             t_drop = seen["drop"]
             pending = next((t.stamp for t in trans if t.dest == State.PENDING.value and t.stamp >= t_drop), None)
             spliced = next((t.stamp for t in trans if t.trigger == "spliced" and pending and t.stamp >= pending), None)
-            landed = next(
-                (e[2]["land"] for e in log if e[1] == "plan_sent" and e[2]["spliced"] and pending and e[0] >= pending),
-                None,
-            )
+            sent = next((e[2] for e in log if e[1] == "plan_sent" and e[2]["spliced"] and pending and e[0] >= pending),
+                        None)  # fmt: skip
+            landed = sent and sent["land"]
             braked = any(e[1] == "brake" and e[0] >= t_drop for e in log)
             clearance = _min_distance(sim, t_drop, time.monotonic())
             rows.append(
@@ -106,6 +105,7 @@ def run(
                     "map_to_pending_ms": _ms(pending, seen.get("map")),
                     "pending_to_spliced_ms": _ms(spliced, pending),
                     "pending_to_landed_ms": _ms(landed, pending),
+                    "replan_plan_ms": sent and sent["plan_time"] * 1e3,  # the planner's own part of pending -> spliced
                     "replanned_without_stopping": bool(spliced)
                     and not braked
                     and res is not None
@@ -195,6 +195,7 @@ def _summary(rows, seed, runs, velocity_scale, camera_rate, time_to_contact) -> 
         "map_to_pending_ms": summary(col("map_to_pending_ms")),
         "pending_to_spliced_ms": summary(col("pending_to_spliced_ms")),
         "pending_to_landed_ms": summary(col("pending_to_landed_ms")),
+        "replan_plan_ms": summary(col("replan_plan_ms")),
         "replanned_without_stopping": sum(r["replanned_without_stopping"] for r in rows),
         "braked": sum(r["braked"] for r in rows),
         "succeeded": sum(r["status"] == "succeeded" for r in rows),
