@@ -273,7 +273,8 @@ def test_a_thin_plate_the_coarse_search_cannot_see_is_never_crossed(panda, panda
 
 def test_a_shortcut_the_coarse_check_lets_through_a_thin_plate_is_shortcut_again_finer(panda, panda_cfg):
     """Shortcuts are checked at the search's coarse resolution; one that crosses a 4 mm plate between two coarse
-    checks fails the full-resolution check of the result, and the path is shortcut again at the full resolution."""
+    checks fails the full-resolution check of the result, and the path is shortcut again at the full resolution.
+    What simplify returns is clear at 4 mm in FCL."""
     from replanner.planning import padded_checker
 
     world = World(panda)
@@ -284,10 +285,9 @@ def test_a_shortcut_the_coarse_check_lets_through_a_thin_plate_is_shortcut_again
     fine = padded_checker(checker, 0.002)
     detour = planner.plan(A, B, deadline=10.0, padding=0.002).path
     planner.checker = planner.paddings.get(0.002)  # as plan() does for a padding
-    planner._search_resolution = 0.4  # coarse enough to step over the plate
-    coarse = planner.shortcut(detour, math.inf, planner._search_resolution)
+    coarse = planner.shortcut(detour, math.inf, 0.4)  # coarse enough to step over the plate
     assert not fine.path_valid(coarse)  # the coarse shortcut crossed the plate
-    W = planner._simplified(detour, math.inf)
+    W = planner.simplify(detour, 0.4)
     assert fine.check_path(W).valid and len(W) <= len(detour)
 
 

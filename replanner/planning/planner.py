@@ -379,7 +379,7 @@ class Planner:
             if bool(status) and pdef.hasExactSolution():
                 raw_path = self._solution(ss)
                 t_simp = time.perf_counter()
-                W = self._simplified(raw_path, t_end)
+                W = self.simplify(raw_path, self._search_resolution, t_end)
                 simplify_time += time.perf_counter() - t_simp
                 if W is None:  # a thin obstacle slipped between the coarse search checks: search finer
                     self._search_resolution = max(fine, self._search_resolution / self.search_coarseness)
@@ -400,10 +400,11 @@ class Planner:
         name = next(k for k, v in PLANNERS.items() if v is used)
         return PlanResult(W, q_goal, name, attempts, search_time, simplify_time, total, raw_waypoints=len(raw_path))
 
-    def _simplified(self, raw: np.ndarray, t_end: float) -> np.ndarray | None:
-        """The search's path shortcut at the search's resolution, then checked at the full one; if a shortcut slipped
-        through a thin obstacle, shortcut at the full resolution. None: the search's own path slipped through one."""
-        W = self.shortcut(raw, t_end, self._search_resolution)
+    def simplify(self, raw: np.ndarray, resolution: float, t_end: float = math.inf) -> np.ndarray | None:
+        """A found path shortcut with motions checked every `resolution` [m] (the search's), then checked at the full
+        path resolution; if a shortcut slipped through a thin obstacle, shortcut at the full resolution. None: `raw`
+        itself slipped through one."""
+        W = self.shortcut(raw, t_end, resolution)
         if self.checker.path_valid(W):
             return W
         if not self.checker.path_valid(raw):
