@@ -125,7 +125,7 @@ class FastChecker:
         """The straight motion a -> b (float64 (dof,), finite: a planner's own states) checked every `resolution`
         [m] (0: a alone): the spheres in one compiled call, then the convex pass and FCL on what is left."""
         c = self._layers()
-        v, unsure, steps = c[6](a, b, resolution)
+        v, unsure, steps = c[6](a, b, float(resolution))  # an int would compile another specialization
         if v < 0:
             return False
         if not len(unsure):
