@@ -23,8 +23,7 @@ class FastChecker:
     def __init__(self, checker, convex: bool = True):
         self.checker = checker
         self.convex = convex
-        # (world version, map, SphereScene, VoxelVolume, ConvexPass, reach, BoundMotion)
-        self._cache: tuple | None = None
+        self._cache: tuple | None = None  # (world version, map, SphereScene, VoxelVolume, ConvexPass, BoundMotion)
         lim = checker.robot.limits
         self._lo, self._hi = lim.lower - 1e-9, lim.upper + 1e-9
 
@@ -59,7 +58,7 @@ class FastChecker:
             vol = VoxelVolume.of(snap.occupancy) if c is None or c[1] is not snap.occupancy else c[3]
             limits = (self._lo, self._hi) if self.checker.check_limits else (None, None)
             motion = BoundMotion(self.checker.robot, layer, vol, *limits, scene.reach)
-            c = self._cache = (snap.version, snap.occupancy, layer, vol, convex, scene.reach, motion)
+            c = self._cache = (snap.version, snap.occupancy, layer, vol, convex, motion)
         return c
 
     def _rows(self, Q) -> np.ndarray:
@@ -98,7 +97,7 @@ class FastChecker:
         robot = self.checker.robot
         W = self._rows(waypoints)
         if len(W) == 2:
-            return self._motion_valid(W[0], W[1], resolution)
+            return self.motion_valid(W[0], W[1], self.checker.path_resolution if resolution is None else resolution)
         Q, _ = self.checker.interpolate(W, resolution)
         if self.checker.check_limits and not ((Q >= self._lo) & (Q <= self._hi)).all():
             return False
@@ -118,14 +117,11 @@ class FastChecker:
                 return False
         return True
 
-    def _motion_valid(self, a: np.ndarray, b: np.ndarray, resolution: float | None) -> bool:
-        return self.motion_valid(a, b, self.checker.path_resolution if resolution is None else float(resolution))
-
     def motion_valid(self, a: np.ndarray, b: np.ndarray, resolution: float) -> bool:
         """The straight motion a -> b (float64 (dof,), finite: a planner's own states) checked every `resolution`
         [m] (0: a alone): the spheres in one compiled call, then the convex pass and FCL on what is left."""
         c = self._layers()
-        v, unsure, steps = c[6](a, b, float(resolution))  # an int would compile another specialization
+        v, unsure, steps = c[5](a, b, float(resolution))  # an int would compile another specialization
         if v < 0:
             return False
         if not len(unsure):
