@@ -7,6 +7,7 @@ import json
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -254,8 +255,10 @@ def test_only_the_cells_identities_play_their_parts(cell):
     if cell.via_router:
         router = cell.procs[0]
         assert router.name == "router"
-        _wait(lambda: f"refused: Put from operator on {keys.trajectory}" in router.tail(400), 5, "the router's log")
-        assert f"refused: Put from camera on {keys.joint_states}" in router.tail(400)
+        shown = SimpleNamespace(logs=lambda: router.tail(80))
+        said = f"refused: Put from operator on {keys.trajectory}"
+        _wait(lambda: said in router.tail(400), 5, "the router's log", shown)
+        assert f"refused: Put from camera on {keys.joint_states}" in router.tail(400), router.tail(60)
         router.stop()
         assert "the router refused" in router.tail(5), router.tail(5)
     else:
@@ -276,7 +279,8 @@ def _line(thread: int, body: str) -> str:
 
 def test_refusals_count_messages_refused_not_the_verdicts_zenoh_caches():
     """Lines as Zenoh 1.x writes them (taken from a router's log): a caching block states a verdict for each of 9
-    actions on a key (computed, nothing refused yet); what follows it, or a cached result, is a message refused."""
+    actions on a key, in order (computed, nothing refused yet); what follows it, or a cached result, is a message
+    refused."""
     r = Refusals()
     key = "replanner/@v1/panda/trajectory"
     via = f"{_ROBOT} on Interface(lo)+CertCommonName(robot)+Transport(Tls)+{_ROBOT}"
@@ -295,6 +299,12 @@ def test_refusals_count_messages_refused_not_the_verdicts_zenoh_caches():
     r.feed(_line(10, f"Using cached result: {_ROBOT} is unauthorized to Query (ingress) on x"))
     assert r.table() == {f"operator: Put (ingress) on {key}": 2, "robot: Query (ingress) on x": 1}
     assert r.total == 3
+    # a session in no rule has no subject: its caching block has no lines, and what its thread says next is a message
+    r.feed(_line(9, f"{op} is unauthorized to Query (ingress) on {key}"))
+    r.feed(_line(11, "ACL (ingress): caching permissions for `replanner/@v1/panda/alive` ..."))
+    r.feed(_line(11, f"{op} is unauthorized to Put (ingress) on {key}"))
+    assert r.table()[f"operator: Put (ingress) on {key}"] == 3 and r.table()[f"operator: Query (ingress) on {key}"] == 1
+    assert r.total == 5
     r.feed(f"\x1b[2m2026\x1b[0m  INFO acc-0 ThreadId(05) {_Z}: e00da70d did not match any configured ACL subject.")
     assert r.no_role == {"e00da70d": 1}
     assert not r.feed("replanner: kinematic panda on replanner/@v1/panda (Ctrl-C stops)\n")  # passed on

@@ -20,11 +20,23 @@ import zenoh
 log = logging.getLogger(__name__)
 
 MODULE = "zenoh::net::routing::interceptor::access_control"
-CACHED_ACTIONS = 9  # after "caching permissions for K", one verdict per action: computed, not messages refused
+# After "caching permissions for K", Zenoh states a verdict per action, in this order, once per rule subject tried:
+# computed, not messages refused. A session in no rule has no subject, and its block has no lines at all.
+CACHED_ACTIONS = (
+    "Query",
+    "Reply",
+    "Put",
+    "Delete",
+    "Declare/Undeclare Subscriber",
+    "Declare/Undeclare Queryable",
+    "Declare/Undeclare Liveliness Token",
+    "Liveliness Query",
+    "Declare Liveliness Subscriber",
+)
 MAX_KINDS = 256  # anyone may try anything: the table of what was refused stays bounded
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 _THREAD = re.compile(r"ThreadId\((\d+)\)")
-_CACHING = re.compile(r"ACL \((?:ingress|egress)\): caching permissions for `")
+_CACHING = re.compile(r"ACL \((?P<flow>ingress|egress)\): caching permissions for `(?P<key>[^`]*)`")
 _VERDICT = re.compile(
     r"(?P<cached>Using cached result: )?(?P<zid>[0-9a-f]+)(?: on (?P<via>\S+))? is (?P<un>un)?authorized to "
     r"(?P<what>.+?) \((?P<flow>ingress|egress)\) on (?P<key>\S+)\s*$"
@@ -47,7 +59,7 @@ class Refusals:
         self.no_role: Counter = Counter()  # session id -> times Zenoh found it in no rule
         self.total = 0
         self.summary_every, self.clock = summary_every, clock
-        self._cache_lines: dict[str, int] = {}  # thread -> verdicts left in a caching block
+        self._blocks: dict[str, list] = {}  # thread -> [flow, key, zid, index of the last action] of a caching block
         self._names: dict[str, str] = {}  # session id -> certificate name, once seen
         self._summarized: tuple[float, int] | None = None  # (when, total) of the last summary
         self._lock = threading.Lock()
@@ -59,8 +71,8 @@ class Refusals:
             return False
         body = line.split(MODULE + ":", 1)[-1].strip()
         thread = m.group(1) if (m := _THREAD.search(line)) else ""
-        if _CACHING.search(body):
-            self._cache_lines[thread] = CACHED_ACTIONS
+        if (m := _CACHING.search(body)) is not None:
+            self._blocks[thread] = [m["flow"], m["key"], None, -1]
             return True
         if (m := _NO_ROLE.search(body)) is not None:
             with self._lock:
@@ -75,12 +87,24 @@ class Refusals:
             return True
         if m["via"] and (name := _NAME.search(m["via"])) and len(self._names) < MAX_KINDS:
             self._names[m["zid"]] = name.group(1)
-        if not m["cached"] and self._cache_lines.get(thread, 0) > 0:
-            self._cache_lines[thread] -= 1
+        if not m["cached"] and self._in_block(thread, m):
             return True
-        self._cache_lines.pop(thread, None)
+        self._blocks.pop(thread, None)
         if m["un"]:
             self._count(self._names.get(m["zid"], m["zid"][:8]), m["what"], m["flow"], m["key"])
+        return True
+
+    def _in_block(self, thread: str, m: re.Match) -> bool:
+        """Whether a verdict line is the next of its thread's caching block: same flow, key and session, and the
+        same action (the next rule subject) or the next one in order. Anything else ends the block."""
+        block = self._blocks.get(thread)
+        if block is None or m["what"] not in CACHED_ACTIONS:
+            return False
+        flow, key, zid, last = block
+        at = CACHED_ACTIONS.index(m["what"])
+        if m["flow"] != flow or m["key"] != key or zid not in (None, m["zid"]) or at not in (last, last + 1):
+            return False
+        block[2:] = [m["zid"], at]
         return True
 
     def _count(self, who: str, what: str, flow: str, key: str) -> None:
