@@ -16,10 +16,13 @@ from multiprocessing.connection import Connection
 
 import numpy as np
 
+EARLY_CANCELS = 64  # cancels of jobs not (yet) seen that are kept
+
 
 def serve(conn: Connection, cancel_conn: Connection) -> None:
     from . import late_compiles
     from .config import parse_config
+    from .planning import PlanningCanceled
     from .planning.worker import error_for_the_wire, plan_and_time
     from .stack import build_stack
     from .world.occupancy import OccupancyMap
@@ -33,6 +36,8 @@ def serve(conn: Connection, cancel_conn: Connection) -> None:
     world = stack.world
     cancel = threading.Event()
     current = [0]
+    early: dict[int, None] = {}  # jobs canceled before their request was read: a cancel may overtake its request
+    lock = threading.Lock()
 
     def listen_for_cancels() -> None:
         while True:
@@ -40,8 +45,13 @@ def serve(conn: Connection, cancel_conn: Connection) -> None:
                 job = cancel_conn.recv()
             except (EOFError, OSError):
                 return
-            if job == current[0]:
-                cancel.set()
+            with lock:
+                if job == current[0]:
+                    cancel.set()
+                else:
+                    early[job] = None
+                    while len(early) > EARLY_CANCELS:  # the oldest: jobs that had ended before their cancel came
+                        early.pop(next(iter(early)))
 
     def die_with_the_parent(parent: int) -> None:
         while os.getppid() == parent:  # a plan in progress reads no socket: a killed parent must end it too
@@ -58,8 +68,13 @@ def serve(conn: Connection, cancel_conn: Connection) -> None:
             return  # the parent is gone
         if req is None:
             return
-        current[0] = req.job
-        cancel.clear()
+        with lock:
+            current[0] = req.job
+            if req.job in early:
+                del early[req.job]
+                cancel.set()
+            else:
+                cancel.clear()
         try:
             if req.static is not None or req.attachments is not None:
                 for name in world.names():  # not world.clear(): that would drop the occupancy map too
@@ -76,6 +91,8 @@ def serve(conn: Connection, cancel_conn: Connection) -> None:
                 world.set_occupancy(
                     OccupancyMap(keys.astype(np.int64), res, stamp=stamp, broadphase_cell=cell, trusted=True)
                 )
+            if cancel.is_set():
+                raise PlanningCanceled("planning canceled before it started")
             answer = ("ok", req.job, plan_and_time(stack.planner, stack.generator, req.plan, cancel))
         except Exception as err:  # the parent must always get an answer
             answer = ("error", req.job, error_for_the_wire(err))

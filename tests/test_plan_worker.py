@@ -152,3 +152,39 @@ def test_a_late_answer_is_never_taken_for_the_next_job(panda_cfg, stack, panda):
         np.testing.assert_allclose(second.trajectory.end, goal, atol=1e-9)
     finally:
         w.close()
+
+
+def test_a_cancel_that_overtakes_its_request_still_stops_its_job(panda_cfg, panda):
+    """The child reads cancels on a thread of its own, so a cancel sent just after a request may be read first. The
+    job must still stop (the child used to drop such a cancel and plan on until the job's deadline)."""
+    import socket
+    import subprocess
+    import sys
+    from multiprocessing.connection import Connection
+
+    from replanner.planning.worker import PlanRequest
+
+    req_parent, req_child = socket.socketpair()
+    cancel_parent, cancel_child = socket.socketpair()
+    fds = (req_child.fileno(), cancel_child.fileno())
+    child = subprocess.Popen([sys.executable, "-m", "replanner.plan_process", *map(str, fds)], pass_fds=fds)
+    req_child.close()
+    cancel_child.close()
+    conn, cancels = Connection(req_parent.detach()), Connection(cancel_parent.detach())
+    try:
+        conn.send((panda_cfg.core().model_dump(mode="python"), 4))
+        assert conn.poll(300.0) and conn.recv()[0] == "ready"
+        job = Answers().job(ARM_UP, ARM_FORWARD, deadline=600.0)  # only a cancel ends this within WAIT
+        cancels.send(job.id)
+        time.sleep(0.5)  # lets the child read the cancel first (what a busy machine does); the verdict waits on none
+        conn.send(PlanRequest(job.id, tuple(sleeve(panda)), (), (), job))
+        assert conn.poll(WAIT), "the canceled job planned on"
+        kind, job_id, err = conn.recv()
+        assert (kind, job_id) == ("error", job.id) and isinstance(err, PlanningCanceled), (kind, err)
+    finally:
+        conn.send(None)
+        try:
+            child.wait(30.0)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()

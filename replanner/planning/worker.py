@@ -130,9 +130,11 @@ class PlanWorker(ABC):
             with self._lock:
                 item, self._next = self._next, None
                 self._wake.clear()
+                if item is not None and item[0].cancel.is_set():
+                    item = None  # canceled before it started: dropped unanswered, and the worker is not busy
                 if item is not None:
                     self._running = item[0]
-            if item is None or item[0].cancel.is_set():
+            if item is None:
                 continue
             job, snapshot = item
             try:
@@ -227,7 +229,7 @@ class InlineWorker(PlanWorker):
 
 
 @dataclass
-class _Request:
+class PlanRequest:
     """One job for the child; the world travels only when it changed since the last request."""
 
     job: int
@@ -292,7 +294,7 @@ class ProcessWorker(PlanWorker):
         occupancy = None
         if occ is not self._sent_map:
             occupancy = () if occ is None or not len(occ) else (occ.keys.astype(np.int32), occ.resolution, occ.stamp)
-        self._conn.send(_Request(job.id, static, attachments, occupancy, job))
+        self._conn.send(PlanRequest(job.id, static, attachments, occupancy, job))
         self._sent_version, self._sent_map = snapshot.version, occ
         wait = job.deadline + self.answer_margin
         while True:
