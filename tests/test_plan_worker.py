@@ -157,20 +157,11 @@ def test_a_late_answer_is_never_taken_for_the_next_job(panda_cfg, stack, panda):
 def test_a_cancel_that_overtakes_its_request_still_stops_its_job(panda_cfg, panda):
     """The child reads cancels on a thread of its own, so a cancel sent just after a request may be read first. The
     job must still stop (the child used to drop such a cancel and plan on until the job's deadline)."""
-    import socket
     import subprocess
-    import sys
-    from multiprocessing.connection import Connection
 
-    from replanner.planning.worker import PlanRequest
+    from replanner.planning.worker import PlanRequest, start_plan_process
 
-    req_parent, req_child = socket.socketpair()
-    cancel_parent, cancel_child = socket.socketpair()
-    fds = (req_child.fileno(), cancel_child.fileno())
-    child = subprocess.Popen([sys.executable, "-m", "replanner.plan_process", *map(str, fds)], pass_fds=fds)
-    req_child.close()
-    cancel_child.close()
-    conn, cancels = Connection(req_parent.detach()), Connection(cancel_parent.detach())
+    child, conn, cancels = start_plan_process()
     try:
         conn.send((panda_cfg.core().model_dump(mode="python"), 4))
         assert conn.poll(300.0) and conn.recv()[0] == "ready"

@@ -239,6 +239,20 @@ class PlanRequest:
     plan: PlanJob
 
 
+def start_plan_process() -> tuple[subprocess.Popen, Connection, Connection]:
+    """Starts `python -m replanner.plan_process`; returns it with its request and cancel connections.
+
+    The child waits for (core config as a dict, seed) on the request connection and answers ("ready", ...).
+    """
+    req_parent, req_child = socket.socketpair()
+    cancel_parent, cancel_child = socket.socketpair()
+    fds = (req_child.fileno(), cancel_child.fileno())
+    proc = subprocess.Popen([sys.executable, "-m", "replanner.plan_process", *map(str, fds)], pass_fds=fds)
+    req_child.close()
+    cancel_child.close()
+    return proc, Connection(req_parent.detach()), Connection(cancel_parent.detach())
+
+
 class ProcessWorker(PlanWorker):
     """Plans in a child process (`python -m replanner.plan_process`) built from the same config.
 
@@ -255,15 +269,7 @@ class ProcessWorker(PlanWorker):
 
     def __init__(self, cfg, seed: int | None = None, *, start_timeout: float = 300.0, answer_margin: float = 30.0):
         super().__init__()
-        req_parent, req_child = socket.socketpair()
-        cancel_parent, cancel_child = socket.socketpair()
-        fds = (req_child.fileno(), cancel_child.fileno())
-        cmd = [sys.executable, "-m", "replanner.plan_process", *map(str, fds)]
-        self._proc = subprocess.Popen(cmd, pass_fds=fds)
-        req_child.close()
-        cancel_child.close()
-        self._conn = Connection(req_parent.detach())
-        self._cancel_conn = Connection(cancel_parent.detach())
+        self._proc, self._conn, self._cancel_conn = start_plan_process()
         self.answer_margin = float(answer_margin)
         self._conn.send((cfg.core().model_dump(mode="python"), seed))
         if not self._conn.poll(start_timeout):

@@ -33,6 +33,7 @@ CACHED_ACTIONS = (
     "Liveliness Query",
     "Declare Liveliness Subscriber",
 )
+ACTION_AT = {action: i for i, action in enumerate(CACHED_ACTIONS)}
 MAX_KINDS = 256  # anyone may try anything: the table of what was refused stays bounded
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 _THREAD = re.compile(r"ThreadId\((\d+)\)")
@@ -98,10 +99,10 @@ class Refusals:
         """Whether a verdict line is the next of its thread's caching block: same flow, key and session, and the
         same action (the next rule subject) or the next one in order. Anything else ends the block."""
         block = self._blocks.get(thread)
-        if block is None or m["what"] not in CACHED_ACTIONS:
+        at = ACTION_AT.get(m["what"])
+        if block is None or at is None:
             return False
         flow, key, zid, last = block
-        at = CACHED_ACTIONS.index(m["what"])
         if m["flow"] != flow or m["key"] != key or zid not in (None, m["zid"]) or at not in (last, last + 1):
             return False
         block[2:] = [m["zid"], at]
