@@ -83,3 +83,33 @@ def test_what_the_layer_calls_free_fcl_and_pybullet_call_free(profile):
     assert misses == 0
     assert clear.sum() > 0.2 * valid.sum()  # the layer decides most free configurations itself
     assert pb.isConnected(oracle.cid) == 0
+
+
+def test_anchored_motion_checks_give_every_configurations_own_verdict(profile):
+    """A motion's anchors, checked with a wider margin, clear their neighbours unchecked: the verdict and the
+    configurations left to FCL must be those of checking each configuration on its own."""
+    cfg, robot = profile
+    rng = np.random.default_rng(11)
+    world = World(robot)
+    add_table(world)
+    world.add("shelf", Box(size=(0.3, 0.6, 0.02)), make_transform((0.55, 0.0, 0.45), (0, 0, 0, 1)))
+    world.add("post", Cylinder(radius=0.05, length=0.8), make_transform((0.45, 0.35, 0.4), (0, 0, 0, 1)))
+    world.set_occupancy(clutter_map(rng, 5_000))
+    fast = FastChecker(CollisionChecker.from_config(robot, world, cfg.collision))
+    anchored = fast.motion()
+    each = anchored.with_ahead(0.0)
+    A = robot.random_q(rng, 600)
+    step = rng.normal(0, 1, A.shape) * rng.uniform(0.02, 0.6, (600, 1))
+    B = np.clip(A + step, robot.limits.lower, robot.limits.upper)
+    kinds = set()
+    for a, b in zip(A, B):
+        for res in (0.004, 0.02):
+            v0, unsure0, steps0 = each(a, b, res)
+            v, unsure, steps = anchored(a, b, res)
+            assert (v, steps) == (v0, steps0)
+            if v0 == 1:
+                assert sorted(unsure) == sorted(unsure0)
+                kinds.add("free" if not len(unsure0) else "unsure")
+            else:
+                kinds.add("contact")
+    assert kinds == {"free", "unsure", "contact"}  # every kind of verdict was compared

@@ -45,6 +45,10 @@ class FastChecker:
         c = self._layers()
         return c[2], c[3], c[4]
 
+    def motion(self) -> BoundMotion:
+        """The compiled motion check of the world as it is now (what `motion_valid` asks first)."""
+        return self._layers()[5]
+
     def _layers(self) -> tuple:
         snap, scene, _, _ = self.checker._current()
         c = self._cache

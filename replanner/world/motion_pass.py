@@ -1,16 +1,22 @@
 """One straight motion through the sphere layer in one compiled call: the configurations a path check would
-interpolate (collision.interpolate's, same count), each placed and classified in turn, every 8th first, stopping at
-the first certain contact. The planner checks thousands of motions a plan; this keeps Python out of each one."""
+interpolate (collision.interpolate's, same count), classified in turn, every 8th first, stopping at the first certain
+contact. Anchors checked with a wider margin clear their neighbours without a check of their own (a plan's motions
+run at a few millimetres' resolution). The planner checks thousands of motions a plan; this keeps Python out of each
+one."""
 
 from __future__ import annotations
+
+import copy
 
 import numba
 import numpy as np
 
 from .kernels import chain_frames
+from .selfcollision import may_collide_row
 from .sphere_layer import SphereScene, VoxelVolume, _one
 
 STRIDE = 8  # every 8th configuration first: a contact is usually found early
+AHEAD = 0.02  # [m] the margin of an anchor's check: free with it, its neighbours within that travel are too
 OUTSIDE = -2  # what `BoundMotion` says of a motion with an end outside the joint limits
 
 
@@ -22,21 +28,28 @@ class BoundMotion:
         robot: the robot model; layer, vol: the sphere layer and the map's voxel volume.
         lo, hi: joint limits the ends must lie within (None: not checked).
         reach (dof,): how far any robot point moves per unit of each joint [m/rad] (steps = |b - a| . reach / res).
+        ahead: [m] the margin of the anchors' checks (0: every configuration is checked on its own).
     """
 
-    def __init__(self, robot, layer: SphereScene, vol: VoxelVolume, lo, hi, reach):
+    def __init__(self, robot, layer: SphereScene, vol: VoxelVolume, lo, hi, reach, ahead: float = AHEAD):
         limits = lo is not None
         dof = robot.dof
         self.args = (
             np.asarray(lo if limits else np.full(dof, -np.inf), np.float64),
             np.asarray(hi if limits else np.full(dof, np.inf), np.float64),
-            np.ascontiguousarray(reach, dtype=np.float64), robot._F, robot._prismatic, robot._joint_order,
-            robot._chain_parents, layer.tab_i, layer.tab_f, layer.tab, layer.local, layer.radius, layer.first,
-            layer.in_local, layer.in_rad, layer.in_first, layer.ball_slot, layer.ball_c, layer.ball_r, layer.gf,
-            layer.env_pad, layer.map_pad, layer.self_pad, layer.env_mask, layer.ob_kind, layer.ob_inv, layer.ob_dim,
-            layer.ob_id, layer.ob_exact, layer.octree_mask, vol.sat, vol.key_min, vol.inv_res, layer.pair_a,
-            layer.pair_b,
+            np.ascontiguousarray(reach, dtype=np.float64), float(ahead), layer.reach, robot._F, robot._prismatic,
+            robot._joint_order, robot._chain_parents, layer.tab_i, layer.tab_f, layer.tab, layer.local, layer.radius,
+            layer.first, layer.in_local, layer.in_rad, layer.in_first, layer.ball_slot, layer.ball_c, layer.ball_r,
+            layer.gf, layer.env_pad, layer.map_pad, layer.self_pad, layer.env_mask, layer.ob_kind, layer.ob_inv,
+            layer.ob_dim, layer.ob_id, layer.ob_exact, layer.octree_mask, vol.sat, vol.key_min, vol.inv_res,
+            layer.pair_a, layer.pair_b,
         )  # fmt: skip
+
+    def with_ahead(self, ahead: float) -> BoundMotion:
+        """The same check with another anchor margin `ahead` [m] (0: every configuration on its own)."""
+        other = copy.copy(self)
+        other.args = self.args[:3] + (float(ahead),) + self.args[4:]
+        return other
 
     def __call__(self, a: np.ndarray, b: np.ndarray, resolution: float) -> tuple[int, np.ndarray, int]:
         """(verdict, unsure, steps) of the motion a -> b (float64 (dof,)) checked every `resolution` [m]: verdict
@@ -47,9 +60,9 @@ class BoundMotion:
 
 @numba.njit(cache=True, nogil=True)
 def _checked_motion(
-    a, b, resolution, lo, hi, reach, F, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local,
-    in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim,
-    ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b,
+    a, b, resolution, lo, hi, reach, ahead, layer_reach, F, prismatic, joints, parents, tab_i, tab_f, table, local,
+    rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask,
+    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b,
 ):  # fmt: skip
     travel = 0.0
     for j in range(a.shape[0]):
@@ -59,18 +72,18 @@ def _checked_motion(
     steps = 0 if resolution <= 0.0 else max(1, np.int64(np.ceil(travel / resolution)))
     unsure = np.empty(steps + 1, np.int64)
     m = _motion(
-        a, b, steps, F, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first,
-        ball_slot, ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
-        octree_mask, sat, key_min, inv_res, pair_a, pair_b, unsure,
+        a, b, steps, ahead, layer_reach, F, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first,
+        in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind,
+        ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b, unsure,
     )  # fmt: skip
     return (-1, unsure[:0], steps) if m < 0 else (1, unsure[:m], steps)
 
 
 @numba.njit(cache=True, nogil=True)
 def _motion(
-    a, b, steps, F, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first,
-    ball_slot, ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
-    octree_mask, sat, key_min, inv_res, pair_a, pair_b, unsure,
+    a, b, steps, ahead, layer_reach, F, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local,
+    in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim,
+    ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b, unsure,
 ):  # fmt: skip
     dof = a.shape[0]
     Q = np.empty((1, dof))
@@ -78,13 +91,39 @@ def _motion(
     C, IC = np.empty((local.shape[0], 3)), np.empty((in_local.shape[0], 3))
     BC, near = np.empty((ball_slot.shape[0], 3)), np.empty(ob_kind.shape[0], np.int64)
     placed = np.zeros(ball_slot.shape[0], np.bool_)
+    # anchors every 2J + 1 configurations, checked with every padding grown by `ahead`: free there, the J on
+    # each side are free too, as no sphere centre moves more than J steps' travel <= ahead (relative: 2 x, and
+    # a self pair's padding grows by 2 x ahead at least)
+    travel = 0.0
+    for j in range(dof):
+        travel += abs(b[j] - a[j]) * layer_reach[j]
+    J = steps if travel <= 0.0 else min(steps, np.int64(np.floor(ahead * max(steps, 1) / travel)))
+    known = np.zeros(steps + 1, np.bool_)  # free for certain without a check of its own
+    if ahead > 0.0 and J >= 1:
+        for anchor in range(J, steps + J + 1, 2 * J + 1):
+            k = min(anchor, steps)
+            _at(a, b, k, steps, Q)
+            chain_frames(Q, F, prismatic, joints, parents, frames)
+            v = _one(
+                0, frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c,
+                ball_r, gf, env_pad + ahead, map_pad + ahead, self_pad + ahead, env_mask, ob_kind, ob_inv, ob_dim,
+                ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
+            )  # fmt: skip
+            if v == -1:
+                return -1  # an inner ball's contact: no padding takes part in it
+            if v == 1:
+                known[max(k - J, 0) : k + J + 1] = True
     m = 0
     for phase in range(2):
         for k in range(steps + 1):
             if (k % STRIDE == 0) != (phase == 0):
                 continue
-            for j in range(dof):
-                Q[0, j] = a[j] + k / steps * (b[j] - a[j]) if k < steps else b[j]
+            _at(a, b, k, steps, Q)
+            if known[k]:
+                if tab_i.shape[0] and may_collide_row(Q[0], tab_i, tab_f, table):
+                    unsure[m] = k  # the always-close pairs' tables are not spheres: each configuration asks
+                    m += 1
+                continue
             chain_frames(Q, F, prismatic, joints, parents, frames)
             v = _one(
                 0, frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c,
@@ -97,3 +136,10 @@ def _motion(
                 unsure[m] = k
                 m += 1
     return m
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _at(a, b, k, steps, Q):
+    """Q[0] = configuration k of `steps` from a to b (b itself at the end)."""
+    for j in range(a.shape[0]):
+        Q[0, j] = a[j] + k / steps * (b[j] - a[j]) if k < steps else b[j]

@@ -430,14 +430,19 @@ class RobotModel:
         Summed with |dq| it bounds how far any such point moves for a joint-space step dq.
         """
         li = self.link_index(link)
-        k = self._link_frame[li]
+        return self.frame_reach(
+            int(self._link_frame[li]) + 1, float(np.linalg.norm(self._link_offset[li][:3, 3])) + radius
+        )
+
+    def frame_reach(self, slot: int, radius: float) -> np.ndarray:
+        """`reach` of the points within `radius` [m] of the origin of frame `slot` (a slot of `frames`: 0 the base)."""
+        k = slot - 1
         out = np.zeros(self.dof)
         if k < 0:
             return out
-        r_in_frame = float(np.linalg.norm(self._link_offset[li][:3, 3])) + radius
         for j in range(self.dof):
             if self._frame_anc[k, j]:
-                out[j] = self._chain_len[j, k] + r_in_frame if not self._prismatic[j] else 1.0
+                out[j] = self._chain_len[j, k] + radius if not self._prismatic[j] else 1.0
         return out
 
     def random_q(self, rng: np.random.Generator, n: int | None = None) -> np.ndarray:

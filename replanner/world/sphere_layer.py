@@ -74,6 +74,7 @@ class SphereScene:
         self.env_pad, self.map_pad, self.self_pad = float(padding), float(map_padding), float(robot.self_body_padding)
         # how far a padding p takes each padded body beyond its shape, per p (geometry.padded)
         self.gf = np.array([_grow_factor(b.raw_shape, grow) for b in scene.bodies])
+        assert (self.gf >= 1.0).all()  # a padding grown by m then grows each sphere by m at least (motion_pass)
         # self pairs of bodies; a body's spheres are first[b]:first[b + 1], inside a ball (slot, centre, radius)
         self.first = np.array(first, dtype=np.int64)
         # pairs that are always close (link 5 and 7) have clearance tables; the spheres take the others
@@ -90,6 +91,10 @@ class SphereScene:
             ball_slot.append(slot[first[bi]])
         self.ball_c, self.ball_r = np.array(ball_c), np.array(ball_r)
         self.ball_slot = np.array(ball_slot, dtype=np.int64)
+        # per joint: how far any sphere centre moves per unit of it (a body's spheres lie within its ball)
+        self.reach = np.zeros(robot.dof)
+        for s, c, r in zip(ball_slot, ball_c, ball_r):
+            self.reach = np.maximum(self.reach, robot.frame_reach(int(s), float(np.linalg.norm(c)) + r))
         # obstacles: kind, world -> obstacle (3, 4), dimensions, index in the scene's obstacle list
         kind, inv, dim, oid, exact = [], [], [], [], []
         names = [name for name, _ in scene.obstacles]
