@@ -96,30 +96,13 @@ class FastChecker:
         return self.motion_valid(q, q, 0.0)
 
     def path_valid(self, waypoints, resolution: float | None = None) -> bool:
-        """As `checker.path_valid`: every 8th interpolated configuration first (a contact is usually found early);
-        certain answers stand, FCL decides the unsure ones."""
-        robot = self.checker.robot
+        """As `checker.path_valid`: each segment as `motion_valid` checks it (the same configurations); certain
+        answers stand, FCL decides the unsure ones."""
         W = self._rows(waypoints)
-        if len(W) == 2:
-            return self.motion_valid(W[0], W[1], self.checker.path_resolution if resolution is None else resolution)
-        Q, _ = self.checker.interpolate(W, resolution)
-        if self.checker.check_limits and not ((Q >= self._lo) & (Q <= self._hi)).all():
-            return False
-        c = self._layers()
-        frames = robot.frames(Q)
-        order = np.concatenate([np.arange(0, len(Q), 8), np.delete(np.arange(len(Q)), np.s_[::8])])
-        verdict = c[2].classify(Q, frames, c[3], order, stop=True)
-        if (verdict == CONTACT).any():
-            return False
-        rest = order[verdict[order] == UNSURE]
-        self._second(c, frames, verdict, rest, stop=True)
-        if (verdict == CONTACT).any():
-            return False
-        rest = rest[verdict[rest] == UNSURE]
-        for i in range(0, len(rest), 256):
-            if not self.checker._first_invalid(Q[rest[i : i + 256]], True)[0].all():
-                return False
-        return True
+        res = self.checker.path_resolution if resolution is None else resolution
+        if len(W) == 1:
+            return self.motion_valid(W[0], W[0], 0.0)
+        return all(self.motion_valid(a, b, res) for a, b in zip(W[:-1], W[1:]))
 
     def motion_valid(self, a: np.ndarray, b: np.ndarray, resolution: float) -> bool:
         """The straight motion a -> b (float64 (dof,), finite: a planner's own states) checked every `resolution`
