@@ -317,6 +317,10 @@ def summarize(rows: list[dict], robot: str, seed: int, deadline: float, cfg) -> 
         failures = [r.get("reason") for r in sel if not r["success"]]
         if failures:
             d["failures"] = failures
+        if sel:  # the problem to replay when a deadline is overrun
+            slow = max(sel, key=lambda r: r["plan_ms"])
+            d["slowest"] = {"family": slow["family"], "index": slow["index"], "plan_ms": slow["plan_ms"],
+                            "success": slow["success"]}  # fmt: skip
         return d
 
     families = sorted({r["family"] for r in rows}, key=FAMILIES.index)
