@@ -170,6 +170,12 @@ def _print_planning(r: dict) -> None:
     Console().print(t)
     over = r["deadline_overrun_ms_max"]
     Console().print(f"slowest plan(), simplification included: {over:+.1f} ms against its deadline (+: over it)")
+    late = r["late_plans"]
+    if late:
+        Console().print(
+            f"{len(late)} plans returned after their deadline (a path found late, then checked in full): "
+            + ", ".join(f"{x['family']} #{x['index']} {x['over_ms']:+.1f} ms" for x in late[:5])
+        )
 
 
 @app.command("planning")
