@@ -9,7 +9,7 @@ import pytest
 from replanner.bench.scenes import add_table, clutter_map
 from replanner.world.collision import OCTREE, CollisionChecker
 from replanner.world.geometry import Box, Cylinder, Sphere, padded_geometry, to_fcl
-from replanner.world.kernels import boxes_meet
+from replanner.world.kernels import boxes_meet, pairs_meet
 from replanner.world.scene import World
 from replanner.world.transforms import make_transform
 from tests.oracle import HULL_MARGIN, PyBulletOracle
@@ -216,6 +216,38 @@ def test_oriented_box_test_never_separates_boxes_fcl_finds_touching():
         apart_found += overlap and not meets[0, 0, 0]
     assert touching > 0.1 * n
     assert apart_found > 0.2 * (aligned_overlaps - touching)  # the test is not the world-aligned one again
+
+
+def test_oriented_pair_test_never_separates_body_boxes_fcl_finds_touching():
+    """The self pairs' separating axis test (two bodies' local boxes, off-centre, at random poses) against FCL's
+    box-box verdict: it keeps every pair that touches and clears most pairs whose world-aligned boxes overlap."""
+    rng = np.random.default_rng(12)
+    n = 4000
+    quats = rng.normal(size=(n, 2, 4))
+    quats[::4, 1] = quats[::4, 0]  # parallel bodies: every cross axis vanishes
+    half = rng.uniform(0.01, 0.3, (n, 2, 3))
+    center = rng.uniform(-0.05, 0.05, (n, 2, 3))
+    T = np.stack([[make_transform(rng.uniform(-0.4, 0.4, 3), q) for q in qq] for qq in quats])
+    pa, pb = np.zeros(1, np.int64), np.ones(1, np.int64)
+    touching = apart_found = 0
+    for i in range(n):
+        keep = np.ones((1, 1), bool)
+        pairs_meet(T[i : i + 1], center[i], half[i], pa, pb, keep)
+        a, b = (
+            fcl.CollisionObject(
+                fcl.Box(*(2 * half[i, k])),
+                fcl.Transform(T[i, k, :3, :3], T[i, k, :3, :3] @ center[i, k] + T[i, k, :3, 3]),
+            )
+            for k in (0, 1)
+        )
+        hit = fcl.collide(a, b, fcl.CollisionRequest()) > 0
+        assert keep[0, 0] or not hit, i
+        touching += hit
+        apart_found += not keep[0, 0]
+    assert touching > 0.1 * n and apart_found > 0.1 * n
+    skipped = np.zeros((1, 1), bool)  # a pair the world-aligned boxes already parted stays parted
+    pairs_meet(T[:1], center[0], half[0], pa, pb, skipped)
+    assert not skipped[0, 0]
 
 
 def test_self_collision_folded_is_invalid_home_is_valid(profile):

@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from .collision_scene import OCTREE, CollisionScene, ThreadObjects
 from .geometry import Shape
-from .kernels import body_boxes, boxes_meet
+from .kernels import body_boxes, boxes_meet, pairs_meet
 from .robot import RobotModel
 from .scene import World, WorldSnapshot
 
@@ -251,6 +251,9 @@ class CollisionChecker:
             overlap = (slo[:, a, 0] <= shi[:, b, 0]) & (shi[:, a, 0] >= slo[:, b, 0])
             for ax in (1, 2):
                 overlap &= (slo[:, a, ax] <= shi[:, b, ax]) & (shi[:, a, ax] >= slo[:, b, ax])
+            # oriented boxes part most pairs whose world-aligned ones meet (a turned hand): no FCL call for those
+            overlap = np.ascontiguousarray(overlap)
+            pairs_meet(T, scene.box_c[1], scene.box_h[1], a, b, overlap)
             cand_self[:, scene.box_cols[k:]] = overlap
         return cand_oct, cand_obj, cand_self
 

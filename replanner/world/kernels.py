@@ -73,49 +73,73 @@ def boxes_meet(T, center, half, lo, hi, mask, obs_lo, obs_hi, obs_R, obs_c, obs_
     """cand[n, b, o]: body b's box (local centre center[b], half extents half[b] at pose T[n, b]; world-aligned
     bounds lo[n, 0, b], hi[n, 0, b] of body_boxes) may meet obstacle o's box (world-aligned obs_lo, obs_hi;
     rotation obs_R[o], centre obs_c[o], half extents obs_h[o]) and mask[b, o] asks. The world-aligned boxes
-    first, then the separating axis test of the two oriented boxes (Ericson, Real-Time Collision Detection
-    4.4.1), 1e-9 m in their favour."""
+    first, then the separating axis test of the two oriented boxes (`_boxes_apart`)."""
     R, A = np.empty((3, 3)), np.empty((3, 3))
     t, w = np.empty(3), np.empty(3)
     for n in range(cand.shape[0]):
         for b in range(cand.shape[1]):
             Tb = T[n, b]
-            for i in range(3):
-                w[i] = Tb[i, 3] + Tb[i, 0] * center[b, 0] + Tb[i, 1] * center[b, 1] + Tb[i, 2] * center[b, 2]
-            e = half[b]
+            _box_centre(Tb, center[b], w)
             for o in range(cand.shape[2]):
                 cand[n, b, o] = mask[b, o]
                 for i in range(3):
                     if lo[n, 0, b, i] > obs_hi[o, i] or hi[n, 0, b, i] < obs_lo[o, i]:
                         cand[n, b, o] = False
-                if not cand[n, b, o]:
-                    continue
-                Ro, f = obs_R[o], obs_h[o]
-                for i in range(3):  # the obstacle's axes and centre in the body box's frame
-                    t[i] = Tb[0, i] * (obs_c[o, 0] - w[0]) + Tb[1, i] * (obs_c[o, 1] - w[1]) + Tb[2, i] * (
-                        obs_c[o, 2] - w[2])  # fmt: skip
-                    for j in range(3):
-                        R[i, j] = Tb[0, i] * Ro[0, j] + Tb[1, i] * Ro[1, j] + Tb[2, i] * Ro[2, j]
-                        A[i, j] = abs(R[i, j]) + 1e-12  # parallel edges make a cross axis vanish
-                apart = False
-                for i in range(3):
-                    if abs(t[i]) > e[i] + f[0] * A[i, 0] + f[1] * A[i, 1] + f[2] * A[i, 2] + 1e-9:
-                        apart = True
-                for j in range(3):
-                    s = abs(t[0] * R[0, j] + t[1] * R[1, j] + t[2] * R[2, j])
-                    if s > e[0] * A[0, j] + e[1] * A[1, j] + e[2] * A[2, j] + f[j] + 1e-9:
-                        apart = True
-                for i in range(3):
-                    i1, i2 = (i + 1) % 3, (i + 2) % 3
-                    for j in range(3):
-                        j1, j2 = (j + 1) % 3, (j + 2) % 3
-                        ra = e[i1] * A[i2, j] + e[i2] * A[i1, j]
-                        rb = f[j1] * A[i, j2] + f[j2] * A[i, j1]
-                        if abs(t[i2] * R[i1, j] - t[i1] * R[i2, j]) > ra + rb + 1e-9:
-                            apart = True
-                if apart:
+                if cand[n, b, o] and _boxes_apart(Tb, w, half[b], obs_R[o], obs_c[o], obs_h[o], R, A, t):
                     cand[n, b, o] = False
     return cand
+
+
+@numba.njit(cache=True, nogil=True)
+def pairs_meet(T, center, half, pa, pb, cand):
+    """Clears cand[n, k] (pairs whose world-aligned boxes meet) where the oriented boxes of bodies pa[k] and pb[k]
+    (local centres center[b], half extents half[b], at poses T[n, b]) are apart (`_boxes_apart`)."""
+    R, A = np.empty((3, 3)), np.empty((3, 3))
+    t, wa, wb = np.empty(3), np.empty(3), np.empty(3)
+    for n in range(cand.shape[0]):
+        for k in range(cand.shape[1]):
+            if not cand[n, k]:
+                continue
+            a, b = pa[k], pb[k]
+            _box_centre(T[n, a], center[a], wa)
+            _box_centre(T[n, b], center[b], wb)
+            if _boxes_apart(T[n, a], wa, half[a], T[n, b, :3, :3], wb, half[b], R, A, t):
+                cand[n, k] = False
+    return cand
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _box_centre(Tb, c, w):
+    for i in range(3):
+        w[i] = Tb[i, 3] + Tb[i, 0] * c[0] + Tb[i, 1] * c[1] + Tb[i, 2] * c[2]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _boxes_apart(Ta, wa, e, Ro, wo, f, R, A, t):
+    """True if a separating axis parts box a (rotation Ta[:3, :3], centre wa, half extents e) from box o (rotation
+    Ro, centre wo, half extents f): the 15 axes of Ericson, Real-Time Collision Detection 4.4.1, 1e-9 m in the
+    boxes' favour. R, A, t: scratch."""
+    for i in range(3):  # box o's axes and centre in box a's frame
+        t[i] = Ta[0, i] * (wo[0] - wa[0]) + Ta[1, i] * (wo[1] - wa[1]) + Ta[2, i] * (wo[2] - wa[2])
+        for j in range(3):
+            R[i, j] = Ta[0, i] * Ro[0, j] + Ta[1, i] * Ro[1, j] + Ta[2, i] * Ro[2, j]
+            A[i, j] = abs(R[i, j]) + 1e-12  # parallel edges make a cross axis vanish
+    for i in range(3):
+        if abs(t[i]) > e[i] + f[0] * A[i, 0] + f[1] * A[i, 1] + f[2] * A[i, 2] + 1e-9:
+            return True
+    for j in range(3):
+        s = abs(t[0] * R[0, j] + t[1] * R[1, j] + t[2] * R[2, j])
+        if s > e[0] * A[0, j] + e[1] * A[1, j] + e[2] * A[2, j] + f[j] + 1e-9:
+            return True
+    for i in range(3):
+        i1, i2 = (i + 1) % 3, (i + 2) % 3
+        for j in range(3):
+            j1, j2 = (j + 1) % 3, (j + 2) % 3
+            ra = e[i1] * A[i2, j] + e[i2] * A[i1, j]
+            rb = f[j1] * A[i, j2] + f[j2] * A[i, j1]
+            if abs(t[i2] * R[i1, j] - t[i1] * R[i2, j]) > ra + rb + 1e-9:
+                return True
+    return False
 
 
 @numba.njit(cache=True, nogil=True)
@@ -176,6 +200,7 @@ def warm_up() -> None:
     flat, bounds = np.zeros((1, 3)), np.zeros((1, 1, 1, 3))
     boxes_meet(eye, flat, flat, bounds, bounds, np.ones((1, 1), bool), flat, flat, np.eye(3)[None].copy(), flat, flat,
                np.ones((1, 1, 1), bool))  # fmt: skip
+    pairs_meet(eye, flat, flat, np.zeros(1, np.int64), np.zeros(1, np.int64), np.ones((1, 1), bool))
     boxes_hit_table(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(3), 1.0, np.ones(3, np.int64),
                     np.zeros(8, np.int32), np.empty(1, bool))  # fmt: skip
     octree_stream(np.zeros(1, np.uint64), 16)  # the first map's octree and broadphase grid
