@@ -173,7 +173,7 @@ def _print_planning(r: dict) -> None:
     late = r["late_plans"]
     if late:
         Console().print(
-            f"{len(late)} plans returned after their deadline (a path found late, then checked in full): "
+            f"{len(late)} plans returned after their deadline's {r['deadline_margin_ms']:.0f} ms margin: "
             + ", ".join(f"{x['family']} #{x['index']} {x['over_ms']:+.1f} ms" for x in late[:5])
         )
 

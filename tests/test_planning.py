@@ -96,6 +96,28 @@ def test_no_solution_in_time_retries_and_says_so(panda, panda_cfg):
     assert int(str(err.value).split("(")[1].split()[0]) >= 2  # retried with fresh trees
 
 
+class SteppedClock:
+    """A machine on which every look at the clock finds `step` seconds gone."""
+
+    def __init__(self, step: float):
+        self.now, self.step = 0.0, step
+
+    def __call__(self) -> float:
+        self.now += self.step
+        return self.now - self.step
+
+
+def test_a_path_found_too_late_for_fcls_check_fails_at_the_deadline_instead_of_returning_late(wall_world):
+    checker = wall_world[1]
+    slow = SteppedClock(0.1)  # a tenth of the deadline per step: the path is found, the time is gone
+    # "0 of": past the stated margin (3 %), FCL checks nothing more
+    with pytest.raises(NoSolution, match=r"too late for FCL's check of it within the 1.000 s deadline \(0 of \d+"):
+        Planner(checker, seed=3, clock=slow).plan(A, B, deadline=1.0)
+    frozen = SteppedClock(0.0)
+    res = Planner(checker, seed=3, clock=frozen).plan(A, B, deadline=1.0)
+    assert not res.direct and checker.check_path(res.path).valid
+
+
 @pytest.mark.parametrize(
     "start,goal,planner_name,deadline,error,match",
     [

@@ -14,6 +14,7 @@ import math
 import threading
 import time
 import weakref
+from collections.abc import Callable
 
 import numpy as np
 from ompl import base as ob
@@ -40,7 +41,10 @@ from .types import (
 log = logging.getLogger(__name__)
 
 ou.setLogLevel(ou.LogLevel.LOG_WARN)
-FINAL_CHECKS_SHARE = 0.03  # of a deadline, kept for the final checks of a path found late (FCL's, unbounded by it)
+FINAL_CHECKS_SHARE = (
+    0.03  # of a deadline: the search stops this much early, and FCL's final check may run this long after
+)
+CONFIRM_CHUNK = 128  # configurations FCL checks between two looks at the deadline (~1 ms alone, a few under load)
 START_LIMIT_SLACK = 1e-3  # [rad] a start this far past a joint limit (an arm at its limit, measured) plans from it
 
 PLANNERS = {
@@ -147,6 +151,7 @@ class Planner:
         seed: every plan starts from this seed (OMPL's generator and the shortcutting): the same problem gives the
             same path, alone or after others. None: fresh randomness. OMPL's generator is per process: planners
             planning at the same time in threads of one process share it.
+        clock: the time source [s] of the deadline's arithmetic (OMPL's own timer aside); tests step it.
     """
 
     def __init__(
@@ -164,7 +169,9 @@ class Planner:
         seed: int | None = None,
         collision_layer: str = "spheres",
         retry_planner: str | None = None,
+        clock: Callable[[], float] = time.perf_counter,
     ):
+        self.clock = clock
         if collision_layer not in ("spheres", "fcl"):
             raise InvalidInputError(f"collision_layer must be 'spheres' or 'fcl', got {collision_layer!r}")
         self.layer = collision_layer
@@ -321,7 +328,8 @@ class Planner:
             self.checker = base
 
     def _plan(self, start, goal, planner: str | None, deadline: float, cancel: threading.Event | None) -> PlanResult:
-        t_begin = time.perf_counter()
+        clock = self.clock
+        t_begin = clock()
         if self.seed is not None:
             _seed_ompl(self.seed)
             self._rng = np.random.default_rng(self.seed)
@@ -340,11 +348,12 @@ class Planner:
             raise StartInvalid(within_padding(self.checker, start, contact, "start"), contact)
         q_goal = self.resolve_goal(start, goal)
         t_end = t_begin + deadline * (1.0 - FINAL_CHECKS_SHARE)
+        t_stop = t_begin + deadline * (1.0 + FINAL_CHECKS_SHARE)  # the promise: back by then, or failed
         if self.checker.path_valid(np.array([start, q_goal])):
-            self._confirm(np.array([start, q_goal]))
-            t = time.perf_counter() - t_begin
+            self._confirm(np.array([start, q_goal]), t_stop, t_begin, deadline)
+            t = clock() - t_begin
             return PlanResult(np.array([start, q_goal]), q_goal, name, 0, 0.0, 0.0, t, direct=True, raw_waypoints=2)
-        t_searching = time.perf_counter()
+        t_searching = clock()
         ss = og.SimpleSetup(self.si)
         ss.setStartAndGoalStates(self._alloc(start), self._alloc(q_goal))
         # the default planner's retries alternate with the retry planner: planners fail on different problems
@@ -357,7 +366,7 @@ class Planner:
         W = raw_path = None
         simplify_time = 0.0
         while W is None:
-            remaining = t_end - time.perf_counter()
+            remaining = t_end - clock()
             if remaining <= 0 or (cancel is not None and cancel.is_set()):
                 break
             attempts += 1
@@ -379,25 +388,25 @@ class Planner:
                 self._attempt = None
             if bool(status) and pdef.hasExactSolution():
                 raw_path = self._solution(ss)
-                t_simp = time.perf_counter()
+                t_simp = clock()
                 W = self.simplify(raw_path, self._search_resolution, t_end)
-                simplify_time += time.perf_counter() - t_simp
+                simplify_time += clock() - t_simp
                 if W is None:  # a thin obstacle slipped between the coarse search checks: search finer
                     self._search_resolution = max(fine, self._search_resolution / self.search_coarseness)
             if W is None:
                 ss.clear()  # a fresh tree: the retry explores from new random samples
-        search_time = time.perf_counter() - t_searching - simplify_time
+        search_time = clock() - t_searching - simplify_time
         if cancel is not None and cancel.is_set():
-            raise PlanningCanceled(f"planning canceled after {time.perf_counter() - t_begin:.3f} s")
+            raise PlanningCanceled(f"planning canceled after {clock() - t_begin:.3f} s")
         if W is None:
             raise NoSolution(
                 f"{name} found no path in {deadline:.3f} s ({attempts} attempts); give a longer deadline, "
                 "another planner, or check that the goal is reachable"
             )
-        t_confirm = time.perf_counter()
-        self._confirm(W)
-        simplify_time += time.perf_counter() - t_confirm
-        total = time.perf_counter() - t_begin
+        t_confirm = clock()
+        self._confirm(W, t_stop, t_begin, deadline)
+        simplify_time += clock() - t_confirm
+        total = clock() - t_begin
         name = next(k for k, v in PLANNERS.items() if v is used)
         return PlanResult(W, q_goal, name, attempts, search_time, simplify_time, total, raw_waypoints=len(raw_path))
 
@@ -412,11 +421,23 @@ class Planner:
             return None
         return self.shortcut(raw, t_end)
 
-    def _confirm(self, W: np.ndarray) -> None:
-        """FCL's own check of the path a plan returns, at path resolution (the sphere layer only ever clears)."""
-        if isinstance(self.checker, FastChecker) and not self.checker.checker.path_valid(W):
-            log.error("the sphere layer cleared a path FCL refuses: a bug, please report it with the scene")
-            raise NoSolution("the path found collides by FCL's check (sphere layer disagreement): plan again")
+    def _confirm(self, W: np.ndarray, t_stop: float, t_begin: float, deadline: float) -> None:
+        """FCL's own check of the path a plan returns, at path resolution (the sphere layer only ever clears), a
+        chunk at a time: past `t_stop` the plan fails rather than return late."""
+        if not isinstance(self.checker, FastChecker):
+            return
+        exact = self.checker.checker
+        Q, _ = exact.interpolate(W)
+        for i in range(0, len(Q), CONFIRM_CHUNK):
+            if self.clock() > t_stop:
+                raise NoSolution(
+                    f"a path was found, too late for FCL's check of it within the {deadline:.3f} s deadline "
+                    f"({i} of {len(Q)} configurations checked after {self.clock() - t_begin:.3f} s); give a longer "
+                    "deadline"
+                )
+            if not exact.is_valid_batch(Q[i : i + CONFIRM_CHUNK]).all():
+                log.error("the sphere layer cleared a path FCL refuses: a bug, please report it with the scene")
+                raise NoSolution("the path found collides by FCL's check (sphere layer disagreement): plan again")
 
     def _solution(self, ss) -> np.ndarray:
         path = ss.getSolutionPath()
@@ -427,11 +448,11 @@ class Planner:
         """Fewer, shorter segments: skip waypoints, try up to `shortcut_tries` random shortcuts, skip again; each
         shortcut checked every `resolution` [m] (None: the checker's path resolution).
 
-        Bounded by counts; `t_end` (a perf_counter time, the plan's deadline) may only cut it short.
+        Bounded by counts; `t_end` (a time of `clock`, the plan's deadline) may only cut it short.
         """
         W = self._skip_waypoints(W, t_end, resolution)
         misses = tries = 0
-        while tries < self.shortcut_tries and len(W) > 2 and misses < 6 and time.perf_counter() < t_end:
+        while tries < self.shortcut_tries and len(W) > 2 and misses < 6 and self.clock() < t_end:
             tries += 1
             seg = np.linalg.norm(np.diff(W, axis=0), axis=1)
             acc = np.concatenate([[0.0], np.cumsum(seg)])
@@ -457,7 +478,7 @@ class Planner:
         W = W[keep]
         out, i = [W[0]], 0
         while i < len(W) - 1:
-            if time.perf_counter() >= t_end:
+            if self.clock() >= t_end:
                 out.extend(W[i + 1 :])
                 break
             j = len(W) - 1
