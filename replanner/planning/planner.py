@@ -41,9 +41,7 @@ from .types import (
 log = logging.getLogger(__name__)
 
 ou.setLogLevel(ou.LogLevel.LOG_WARN)
-FINAL_CHECKS_SHARE = (
-    0.03  # of a deadline: the search stops this much early, and FCL's final check may run this long after
-)
+FINAL_CHECKS_SHARE = 0.03  # of a deadline: the search stops this much early, FCL's final check this much late
 CONFIRM_CHUNK = 128  # configurations FCL checks between two looks at the deadline (~1 ms alone, a few under load)
 START_LIMIT_SLACK = 1e-3  # [rad] a start this far past a joint limit (an arm at its limit, measured) plans from it
 

@@ -74,7 +74,8 @@ class SphereScene:
         self.env_pad, self.map_pad, self.self_pad = float(padding), float(map_padding), float(robot.self_body_padding)
         # how far a padding p takes each padded body beyond its shape, per p (geometry.padded)
         self.gf = np.array([_grow_factor(b.raw_shape, grow) for b in scene.bodies])
-        assert (self.gf >= 1.0).all()  # a padding grown by m then grows each sphere by m at least (motion_pass)
+        if (self.gf < 1.0).any():  # a padding grown by m must grow each sphere by m at least (motion_pass)
+            raise RuntimeError(f"a body's padding grows it by less than the padding: factors {self.gf}")
         # self pairs of bodies; a body's spheres are first[b]:first[b + 1], inside a ball (slot, centre, radius)
         self.first = np.array(first, dtype=np.int64)
         # pairs that are always close (link 5 and 7) have clearance tables; the spheres take the others
