@@ -85,8 +85,8 @@ class TimeLaw:
     duration: float
 
     def eval(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
-        k = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1)
+        t = np.minimum(np.maximum(np.asarray(t, dtype=float), 0.0), self.duration)  # np.clip: ~10 us more a call
+        k = np.minimum(np.maximum(np.searchsorted(self.t, t, side="right") - 1, 0), len(self.t) - 1)
         dt = t - self.t[k]
         j, a, v = self.j[k], self.a[k], self.v[k]
         s = self.s[k] + v * dt + a * dt**2 / 2 + j * dt**3 / 6
