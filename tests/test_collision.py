@@ -231,8 +231,13 @@ def test_oriented_pair_test_never_separates_body_boxes_fcl_finds_touching():
     pa, pb = np.zeros(1, np.int64), np.ones(1, np.int64)
     touching = apart_found = 0
     for i in range(n):
+        mid = T[i, :, :3, :3] @ center[i][..., None] + T[i, :, :3, 3:]
+        reach = np.abs(T[i, :, :3, :3]) @ half[i][..., None]
+        lo = np.zeros((1, 2, 2, 3))
+        hi = lo.copy()
+        lo[0, 1], hi[0, 1] = (mid - reach)[..., 0], (mid + reach)[..., 0]  # the self group's world-aligned boxes
         keep = np.ones((1, 1), bool)
-        pairs_meet(T[i : i + 1], center[i], half[i], pa, pb, keep)
+        pairs_meet(T[i : i + 1], center[i], half[i], lo, hi, pa, pb, keep)
         a, b = (
             fcl.CollisionObject(
                 fcl.Box(*(2 * half[i, k])),
@@ -243,10 +248,13 @@ def test_oriented_pair_test_never_separates_body_boxes_fcl_finds_touching():
         hit = fcl.collide(a, b, fcl.CollisionRequest()) > 0
         assert keep[0, 0] or not hit, i
         touching += hit
-        apart_found += not keep[0, 0]
+        overlap = bool(np.all(lo[0, 1, 0] <= hi[0, 1, 1]) and np.all(hi[0, 1, 0] >= lo[0, 1, 1]))
+        apart_found += overlap and not keep[0, 0]  # parted by the oriented test, not the world-aligned one
     assert touching > 0.1 * n and apart_found > 0.1 * n
-    skipped = np.zeros((1, 1), bool)  # a pair the world-aligned boxes already parted stays parted
-    pairs_meet(T[:1], center[0], half[0], pa, pb, skipped)
+    lo[0, 1, 1] += 10.0  # a pair the world-aligned boxes already part stays parted
+    hi[0, 1, 1] += 10.0
+    skipped = np.ones((1, 1), bool)
+    pairs_meet(T[n - 1 : n], center[n - 1], half[n - 1], lo, hi, pa, pb, skipped)
     assert not skipped[0, 0]
 
 

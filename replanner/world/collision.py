@@ -246,15 +246,10 @@ class CollisionChecker:
             cand_self[:, scene.table_cols] = scene.tables.may_collide(Q)
         k = 0 if robot_pairs else scene.first_attached_box  # box columns of attachments come last
         if len(scene.box_cols) > k:
-            slo, shi = lo[:, 1], hi[:, 1]
-            a, b = scene.box_a[k:], scene.box_b[k:]
-            overlap = (slo[:, a, 0] <= shi[:, b, 0]) & (shi[:, a, 0] >= slo[:, b, 0])
-            for ax in (1, 2):
-                overlap &= (slo[:, a, ax] <= shi[:, b, ax]) & (shi[:, a, ax] >= slo[:, b, ax])
             # oriented boxes part most pairs whose world-aligned ones meet (a turned hand): no FCL call for those
-            overlap = np.ascontiguousarray(overlap)
-            pairs_meet(T, scene.box_c[1], scene.box_h[1], a, b, overlap)
-            cand_self[:, scene.box_cols[k:]] = overlap
+            meet = np.empty((len(T), len(scene.box_cols) - k), dtype=bool)
+            pairs_meet(T, scene.box_c[1], scene.box_h[1], lo, hi, scene.box_a[k:], scene.box_b[k:], meet)
+            cand_self[:, scene.box_cols[k:]] = meet
         return cand_oct, cand_obj, cand_self
 
     # ------------------------------------------------------------------ narrowphase

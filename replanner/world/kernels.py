@@ -91,16 +91,21 @@ def boxes_meet(T, center, half, lo, hi, mask, obs_lo, obs_hi, obs_R, obs_c, obs_
 
 
 @numba.njit(cache=True, nogil=True)
-def pairs_meet(T, center, half, pa, pb, cand):
-    """Clears cand[n, k] (pairs whose world-aligned boxes meet) where the oriented boxes of bodies pa[k] and pb[k]
-    (local centres center[b], half extents half[b], at poses T[n, b]) are apart (`_boxes_apart`)."""
+def pairs_meet(T, center, half, lo, hi, pa, pb, cand):
+    """cand[n, k]: the boxes of bodies pa[k] and pb[k] (local centres center[b], half extents half[b], at poses
+    T[n, b]; world-aligned bounds lo[n, 1, b], hi[n, 1, b] of body_boxes) may meet: the world-aligned boxes first,
+    then the separating axis test of the two oriented boxes (`_boxes_apart`)."""
     R, A = np.empty((3, 3)), np.empty((3, 3))
     t, wa, wb = np.empty(3), np.empty(3), np.empty(3)
     for n in range(cand.shape[0]):
         for k in range(cand.shape[1]):
+            a, b = pa[k], pb[k]
+            cand[n, k] = True
+            for i in range(3):
+                if lo[n, 1, a, i] > hi[n, 1, b, i] or hi[n, 1, a, i] < lo[n, 1, b, i]:
+                    cand[n, k] = False
             if not cand[n, k]:
                 continue
-            a, b = pa[k], pb[k]
             _box_centre(T[n, a], center[a], wa)
             _box_centre(T[n, b], center[b], wb)
             if _boxes_apart(T[n, a], wa, half[a], T[n, b, :3, :3], wb, half[b], R, A, t):
@@ -200,7 +205,8 @@ def warm_up() -> None:
     flat, bounds = np.zeros((1, 3)), np.zeros((1, 1, 1, 3))
     boxes_meet(eye, flat, flat, bounds, bounds, np.ones((1, 1), bool), flat, flat, np.eye(3)[None].copy(), flat, flat,
                np.ones((1, 1, 1), bool))  # fmt: skip
-    pairs_meet(eye, flat, flat, np.zeros(1, np.int64), np.zeros(1, np.int64), np.ones((1, 1), bool))
+    pairs = np.zeros((1, 2, 1, 3))
+    pairs_meet(eye, flat, flat, pairs, pairs, np.zeros(1, np.int64), np.zeros(1, np.int64), np.ones((1, 1), bool))
     boxes_hit_table(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(3), 1.0, np.ones(3, np.int64),
                     np.zeros(8, np.int32), np.empty(1, bool))  # fmt: skip
     octree_stream(np.zeros(1, np.uint64), 16)  # the first map's octree and broadphase grid
