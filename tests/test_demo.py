@@ -40,6 +40,10 @@ def test_sim_arm_follows_goals_under_physics_and_reports_truth(tmp_path):
         sub = session.declare_subscriber(
             client.keys.joint_states, lambda s: stamps.append(m.decode_joint_state(s.payload.to_bytes(), NAMES)[0])
         )
+        end = time.monotonic() + 30  # the subscription reaches the sim through the router: on a busy machine, slowly
+        while not stamps:
+            assert time.monotonic() < end, "no joint state reached a new subscriber in 30 s" + sim.tail()
+            time.sleep(0.05)
         goal = [0.3, -0.4, 0.1, -2.0, 0.0, 1.7, 0.9]
         res = client.send_goal(joints=goal).wait(30)
         sub.undeclare()
