@@ -281,7 +281,8 @@ def test_the_timing_kernels_never_compile_again_mid_motion(panda):
     from replanner.trajectory import Limits, Trajectory, kernels
 
     gen = TrajectoryGenerator(panda)  # warms the kernels up
-    before = {k: len(getattr(kernels, k).signatures) for k in ("quintic_peaks", "path_bounds", "slowest_entry")}
+    names = ("quintic_peaks", "path_bounds", "slowest_entry", "progress")
+    before = {k: len(getattr(kernels, k).signatures) for k in names}
     lim = panda.limits  # read-only arrays
     traj = gen.time(np.array([panda.home, panda.home + 0.4, panda.home + [0.4, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0]]))
     held = Trajectory(traj.curve, traj.law, Limits(lim.velocity, lim.acceleration, lim.jerk), traj.joint_names)
@@ -289,3 +290,42 @@ def test_the_timing_kernels_never_compile_again_mid_motion(panda):
     q0, v0, _ = slow.state_at(0.2)
     gen.splice(slow, 0.2, np.array([q0, q0 + 0.3 * v0 / np.linalg.norm(v0)]))
     assert {k: len(getattr(kernels, k).signatures) for k in before} == before
+
+
+def test_curve_queries_in_any_order_and_along_the_polyline_agree_with_their_definitions():
+    """Curve.eval in order (slices), out of order (masks), one point at a time and empty agree; the compiled progress
+    along a polyline and the batched points at arc lengths agree with per-segment loops of their definitions."""
+    from replanner.trajectory.curve import blended_curve, points_along
+
+    rng = np.random.default_rng(4)
+    W = np.cumsum(rng.normal(0, 0.3, (6, 7)), axis=0)
+    curve = blended_curve(W, 0.1)
+    s = np.linspace(0.0, curve.length, 500)
+    perm = rng.permutation(len(s))
+    for order in (0, 1, 2):
+        in_order = curve.eval(s, order)
+        np.testing.assert_allclose(curve.eval(s[perm], order), in_order[perm], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(np.vstack([curve.eval(x, order) for x in s[::25]]), in_order[::25], atol=1e-12)
+    assert curve.eval(np.zeros(0)).shape == (0, 7)
+
+    seg = np.linalg.norm(np.diff(W, axis=0), axis=1)
+    starts = np.concatenate([[0.0], np.cumsum(seg)])
+    P = rng.normal(W.mean(axis=0), 0.6, (300, 7))
+    best_d, best_s = np.full(len(P), np.inf), np.zeros(len(P))
+    for k in range(len(seg)):  # the closest point of each segment; before W[0] progress goes negative
+        ab = W[k + 1] - W[k]
+        t = np.minimum(((P - W[k]) @ ab) / (ab @ ab), 1.0)
+        t = t if k == 0 else np.maximum(t, 0.0)
+        d = np.linalg.norm(P - (W[k] + np.maximum(t, 0.0)[:, None] * ab), axis=1)
+        better = d < best_d - 1e-12
+        best_d[better], best_s[better] = d[better], starts[k] + t[better] * seg[k]
+    assert (best_s < 0).any() and (best_s > starts[1]).any()
+    np.testing.assert_allclose(progress_along(P, W), best_s, rtol=0, atol=1e-12)
+
+    lengths = np.array([0.0, 0.3 * seg[0], seg[0], starts[3] + 0.5 * seg[3], starts[-1], starts[-1] + 1.0])
+    B, ks = points_along(W, lengths)
+    for b, k, length in zip(B, ks, lengths):
+        k_ref = min(int(np.searchsorted(starts[1:], length)), len(seg) - 1)
+        f = np.clip((length - starts[k_ref]) / seg[k_ref], 0.0, 1.0)
+        assert k == k_ref
+        np.testing.assert_allclose(b, W[k_ref] + f * (W[k_ref + 1] - W[k_ref]), atol=1e-12)

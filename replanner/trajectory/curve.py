@@ -8,11 +8,12 @@ acceleration and jerk bounds from them.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from functools import cached_property
 
 import numpy as np
 
 from ..errors import TrajectoryError
-from .kernels import quintic_peaks, writable
+from .kernels import progress, quintic_peaks, writable
 
 EPS = 1e-9
 BLEND_PARTS = 4  # a blend is timed in parts: its ends are straighter than its middle
@@ -28,6 +29,11 @@ class Piece(ABC):
     @abstractmethod
     def eval(self, x: np.ndarray, order: int) -> np.ndarray:  # (n, dof)
         """The derivative of this order with respect to x, at local parameters x (n,)."""
+
+    @cached_property
+    def end_tangents(self) -> tuple[np.ndarray, np.ndarray]:
+        """dq/dx at x = 0 and at x = length (every timing of the curve asks at each corner)."""
+        return self.eval(np.array([0.0]), 1)[0], self.eval(np.array([self.length]), 1)[0]
 
 
 class Line(Piece):
@@ -142,6 +148,12 @@ class Curve:
         if len(idx) and (idx == idx[0]).all():  # all in one piece: no masks
             return self.pieces[idx[0]].eval(s - self.starts[idx[0]], order)
         out = np.empty((len(s), len(self.polyline[0])))
+        if len(s) and (idx[1:] >= idx[:-1]).all():  # in order (a time series): slices, no masks
+            cuts = [0, *(np.flatnonzero(idx[1:] != idx[:-1]) + 1).tolist(), len(s)]
+            for a, b in zip(cuts[:-1], cuts[1:]):
+                k = idx[a]
+                out[a:b] = self.pieces[k].eval(s[a:b] - self.starts[k], order)
+            return out
         for k in np.unique(idx):
             sel = idx == k
             out[sel] = self.pieces[k].eval(s[sel] - self.starts[k], order)
@@ -156,15 +168,22 @@ class Curve:
         return np.vstack(pts)
 
 
-def _deviation_factor(d_in: np.ndarray, d_out: np.ndarray) -> float:
-    """Max distance from the unit blend (b = 1) to the corner's two segments."""
-    corner = np.zeros_like(d_in)
+_U65 = np.linspace(0.0, 1.0, 65)[:, None] ** np.arange(6)
+
+
+def _deviation_factors(d_in: np.ndarray, d_out: np.ndarray) -> np.ndarray:
+    """Max distance (k,) from each unit blend (b = 1) to its corner's two segments; d_in, d_out (k, dof)."""
     A, B = -d_in, d_out
-    ell = float(np.linalg.norm(B - A))
-    c = quintic_coefficients(A, ell * d_in, np.zeros_like(A), B, ell * d_out, np.zeros_like(A))
-    u = np.linspace(0, 1, 65)[:, None]
-    pts = (u ** np.arange(6)) @ c
-    return float(np.minimum(_dist_to_segment(pts, A, corner), _dist_to_segment(pts, corner, B)).max())
+    ell = np.linalg.norm(B - A, axis=1)[:, None]
+    z = np.zeros_like(A)
+    pts = _U65 @ quintic_coefficients(A, ell * d_in, z, B, ell * d_out, z)  # (k, 65, dof)
+    dots = np.maximum(np.einsum("kd,kd->k", d_in, d_in), EPS)[:, None, None]
+    t = np.clip(np.einsum("knd,kd->kn", pts - A[:, None], d_in)[..., None] / dots, 0.0, 1.0)
+    first = np.linalg.norm(pts - (A[:, None] + t * d_in[:, None]), axis=2)  # to the segment A -> corner (0)
+    dots = np.maximum(np.einsum("kd,kd->k", B, B), EPS)[:, None, None]
+    t = np.clip(np.einsum("knd,kd->kn", pts, B)[..., None] / dots, 0.0, 1.0)
+    second = np.linalg.norm(pts - t * B[:, None], axis=2)  # to the segment corner -> B
+    return np.minimum(first, second).max(axis=1)
 
 
 def _dist_to_segment(P: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -182,20 +201,12 @@ def distance_to_polyline(P: np.ndarray, W: np.ndarray) -> np.ndarray:
 
 
 def progress_along(P: np.ndarray, W: np.ndarray) -> np.ndarray:
-    """Arc-length position (n,) of the closest point of the polyline W to each point of P."""
-    seg = np.linalg.norm(np.diff(W, axis=0), axis=1)
-    starts = np.concatenate([[0.0], np.cumsum(seg)])
-    best_d = np.full(len(P), np.inf)
-    best_s = np.zeros(len(P))
-    for k, (a, b) in enumerate(zip(W[:-1], W[1:])):
-        ab = b - a
-        # before the first waypoint progress is negative: moving away from the path's start counts as backwards
-        t = np.clip(((P - a) @ ab) / max(ab @ ab, EPS), -np.inf if k == 0 else 0.0, 1.0)
-        d = np.linalg.norm(P - (a + np.maximum(t, 0.0)[:, None] * ab), axis=1)
-        better = d < best_d - 1e-12
-        best_d[better] = d[better]
-        best_s[better] = starts[k] + t[better] * seg[k]
-    return best_s
+    """Arc-length position (n,) of the closest point of the polyline W to each point of P.
+
+    Before the first waypoint progress is negative: moving away from the path's start counts as backwards.
+    """
+    P, W = writable(np.atleast_2d(P)), writable(W)
+    return progress(P, W, EPS, np.empty(len(P)))
 
 
 def blended_curve(
@@ -218,10 +229,11 @@ def blended_curve(
     L = np.linalg.norm(seg, axis=1)
     D = seg / L[:, None]
     b = np.zeros(n)
+    factors = _deviation_factors(D[:-1], D[1:]) if n > 2 else None
     for k in range(1, n - 1):
         if D[k - 1] @ D[k] < -0.98:  # turning back: no blend can do it, stop at the corner
             continue
-        f = _deviation_factor(D[k - 1], D[k])
+        f = factors[k - 1]
         size = tube_radius / f if f > EPS else np.inf
         scale = 1.0 if blend_scale is None else float(blend_scale[k])
         b[k] = scale * min(size, 0.45 * L[k - 1], 0.45 * L[k])
@@ -256,13 +268,11 @@ def clip_curve(curve: Curve, a: float, b: float) -> list[Piece]:
     return out
 
 
-def point_along(W: np.ndarray, length: float) -> tuple[np.ndarray, int]:
-    """The point at arc length `length` along W and the index of its segment."""
+def points_along(W: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points (k, dof) at arc lengths `lengths` (k,) along W, and the indices (k,) of their segments."""
     seg = np.linalg.norm(np.diff(W, axis=0), axis=1)
-    acc = 0.0
-    for k, L in enumerate(seg):
-        if acc + L >= length or k == len(seg) - 1:
-            f = np.clip((length - acc) / L, 0.0, 1.0)
-            return W[k] + f * (W[k + 1] - W[k]), k
-        acc += L
-    return W[-1], len(seg) - 1
+    ends = np.cumsum(seg)
+    k = np.minimum(np.searchsorted(ends, lengths, side="left"), len(seg) - 1)
+    starts = np.concatenate([[0.0], ends[:-1]])
+    f = np.clip((np.asarray(lengths, dtype=float) - starts[k]) / seg[k], 0.0, 1.0)
+    return W[k] + f[:, None] * (W[k + 1] - W[k]), k

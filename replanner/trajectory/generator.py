@@ -21,7 +21,7 @@ from .curve import (
     blended_curve,
     clip_curve,
     distance_to_polyline,
-    point_along,
+    points_along,
     progress_along,
     quintic_bounds,
     quintic_coefficients,
@@ -75,10 +75,13 @@ class Trajectory:
         return self.law.eval(np.atleast_1d(t))
 
     def evaluate(self, t, order: int = 2) -> list[np.ndarray]:
-        """[q, q_dot, q_ddot(, q_dddot)] (n, dof) at times t (clamped to [0, duration])."""
+        """[q, q_dot, q_ddot, q_dddot] (n, dof) up to the order-th derivative, at times t (clamped to [0, duration])."""
         s, v, a, j = self.law.eval(np.atleast_1d(np.asarray(t, dtype=float)))
+        out = [self.curve.eval(s, 0)]
+        if order == 0:
+            return out
         d1 = self.curve.eval(s, 1)
-        out = [self.curve.eval(s, 0), d1 * v[:, None]]
+        out.append(d1 * v[:, None])
         if order >= 2:
             d2 = self.curve.eval(s, 2)
             out.append(d1 * a[:, None] + d2 * (v**2)[:, None])
@@ -195,11 +198,15 @@ class TrajectoryGenerator:
             self.robot.joint_names,
         )
 
-    def _safe_curve(self, W: np.ndarray, report: TimingReport | None, head=None) -> tuple[Curve, np.ndarray]:
-        """Blend within the tube; shrink any blend whose corner cut collides (the polyline itself is valid)."""
+    def _safe_curve(
+        self, W: np.ndarray, report: TimingReport | None, head=None, first: Curve | None = None
+    ) -> tuple[Curve, np.ndarray]:
+        """Blend within the tube; shrink any blend whose corner cut collides (the polyline itself is valid).
+
+        first: blended_curve(W, tube_radius, None, head) if already built."""
         scale = np.ones(len(W))
         for attempt in range(4):
-            curve = blended_curve(W, self.tube_radius, scale, head)
+            curve = first if attempt == 0 and first is not None else blended_curve(W, self.tube_radius, scale, head)
             bad = self._colliding_corners(curve, W, skip=len(head or []))
             if not len(bad):
                 break
@@ -348,10 +355,8 @@ class TrajectoryGenerator:
         shape_basis = basis(np.linspace(0.0, 1.0, 12 * SPLICE_PARTS), 0)
         # the merge points do not depend on the lead-in
         reach = 0.9 * total if merge_within is None else min(0.9 * total, merge_within)
-        merges = [point_along(W, min(length, reach)) for length in SPLICE_MERGES]
-        B = np.array([b for b, _ in merges])
-        ks = [k for _, k in merges]
-        seg = W[np.array(ks) + 1] - W[np.array(ks)]
+        B, ks = points_along(W, np.minimum(SPLICE_MERGES, reach))
+        seg = W[ks + 1] - W[ks]
         d_b = seg / np.linalg.norm(seg, axis=1, keepdims=True)
         for lead in SPLICE_LEADS:
             if lead > 0 and s0 + lead > old_end - 1e-6:
@@ -402,7 +407,7 @@ class TrajectoryGenerator:
                     last_err = "the transition onto the new path collides"
                     continue
                 try:
-                    curve, _ = self._safe_curve(rest, report, head=lead_in)
+                    curve, _ = self._safe_curve(rest, report, head=lead_in, first=draft)
                     law = time_law(curve, lim, 0.0, v0, a0, curve.length)
                 except TrajectoryError as err:
                     last_err = str(err)

@@ -22,25 +22,37 @@ STEP = 0.8  # a curved piece's speed is lowered this factor at a time ...
 STEPS = 30  # ... at most this many times (to 0.8^29 of its first guess)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+# no NaN or inf reaches these loops (finite waypoints): without those checks LLVM vectorizes the maxima; the
+# arithmetic itself is unchanged (no reassociation, no fused multiply-add)
+EXACT_FAST = {"nnan", "ninf", "nsz"}
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=EXACT_FAST)
 def quintic_peaks(c, ell, edges, samples, out):
     """out (N, parts, 4, dof): the largest |d^k q / dx^k| (k = 1..4) at `samples` evenly spaced u in each
     [edges[i], edges[i+1]] of the quintics q(u) = sum c[n, p] u^p (c: (N, 6, dof)), x = u * ell[n]."""
     N, dof = c.shape[0], c.shape[2]
     parts = edges.shape[0] - 1
+    us = np.empty(parts * samples)
+    for i in range(parts):
+        for s in range(samples):
+            us[i * samples + s] = edges[i] + (edges[i + 1] - edges[i]) * (s / (samples - 1))
     for n in range(N):
         inv = 1.0 / ell[n]
         for d in range(dof):
             c1, c2, c3, c4, c5 = c[n, 1, d], c[n, 2, d], c[n, 3, d], c[n, 4, d], c[n, 5, d]
             for i in range(parts):
                 p1 = p2 = p3 = p4 = 0.0
-                for s in range(samples):
-                    u = edges[i] + (edges[i + 1] - edges[i]) * (s / (samples - 1))
+                for s in range(i * samples, (i + 1) * samples):
+                    u = us[s]
                     d1 = abs(c1 + u * (2 * c2 + u * (3 * c3 + u * (4 * c4 + u * 5 * c5))))
                     d2 = abs(2 * c2 + u * (6 * c3 + u * (12 * c4 + u * 20 * c5)))
                     d3 = abs(6 * c3 + u * (24 * c4 + u * 60 * c5))
                     d4 = abs(24 * c4 + u * 120 * c5)
-                    p1, p2, p3, p4 = max(p1, d1), max(p2, d2), max(p3, d3), max(p4, d4)
+                    p1 = d1 if d1 > p1 else p1
+                    p2 = d2 if d2 > p2 else p2
+                    p3 = d3 if d3 > p3 else p3
+                    p4 = d4 if d4 > p4 else p4
                 out[n, i, 0, d] = p1 * inv
                 out[n, i, 1, d] = p2 * inv * inv
                 out[n, i, 2, d] = p3 * inv * inv * inv
@@ -126,9 +138,43 @@ def slowest_entry(bounds, lengths, out):
     return out
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def progress(P, W, eps, out):
+    """out (n,): the arc position along the polyline W (m, dof) of the closest point to each point of P (n, dof);
+    before W[0] it is negative. The first segment wins a tie (another must be closer by 1e-12)."""
+    n, dof, m = P.shape[0], P.shape[1], W.shape[0]
+    seg, ab2 = np.empty(m - 1), np.empty(m - 1)
+    starts = np.zeros(m)
+    for k in range(m - 1):
+        sq = 0.0
+        for j in range(dof):
+            sq += (W[k + 1, j] - W[k, j]) ** 2
+        seg[k], ab2[k] = math.sqrt(sq), max(sq, eps)
+        starts[k + 1] = starts[k] + seg[k]
+    for i in range(n):
+        best_d, best_s = np.inf, 0.0
+        for k in range(m - 1):
+            dot = 0.0
+            for j in range(dof):
+                dot += (P[i, j] - W[k, j]) * (W[k + 1, j] - W[k, j])
+            t = min(dot / ab2[k], 1.0)
+            if k > 0:
+                t = max(t, 0.0)
+            tc = max(t, 0.0)
+            sq = 0.0
+            for j in range(dof):
+                sq += (P[i, j] - (W[k, j] + tc * (W[k + 1, j] - W[k, j]))) ** 2
+            d = math.sqrt(sq)
+            if d < best_d - 1e-12:
+                best_d, best_s = d, starts[k] + t * seg[k]
+        out[i] = best_s
+    return out
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel now: a first compile takes seconds, too long mid-splice."""
     m = np.ones((1, 3, 1))
     quintic_peaks(np.ones((1, 6, 1)), np.ones(1), np.array([0.0, 1.0]), 3, np.empty((1, 1, 4, 1)))
     path_bounds(m, np.ones(1), np.ones(1), np.ones(1), 1e-9, 0.75, np.empty((1, 3)))
     slowest_entry(np.ones((1, 1, 3)), np.ones((1, 1)), np.empty(1))
+    progress(np.ones((1, 1)), np.array([[0.0], [1.0]]), 1e-9, np.empty(1))

@@ -212,9 +212,7 @@ def _speed_caps(
     for i in range(1, n):  # two pieces meeting at an angle (an unblended corner): come to rest there
         if ks[i - 1] == ks[i]:
             continue  # one piece in two parts (see _slowing)
-        before = curve.pieces[ks[i - 1]]
-        t_in = before.eval(np.array([before.length]), 1)[0]
-        t_out = curve.pieces[ks[i]].eval(np.array([0.0]), 1)[0]
+        t_in, t_out = curve.pieces[ks[i - 1]].end_tangents[1], curve.pieces[ks[i]].end_tangents[0]
         if np.linalg.norm(t_in - t_out) > 1e-6:
             cap[i] = 0.0
     for i in range(n - 1, 0, -1):  # backward: able to slow down in time
