@@ -73,7 +73,7 @@ def test_the_convex_pass_decides_what_the_spheres_cannot_as_fcl_does(profile):
             Q = robot.random_q(rng, 4_000)
             layer, volume, convex = fast.passes()
             frames = robot.frames(Q)
-            unsure = np.flatnonzero(layer.classify(Q, frames, volume) == UNSURE)
+            unsure = np.flatnonzero(layer.classify(Q, volume) == UNSURE)
             verdict = decide_batch(convex, layer, frames, unsure, volume)
             valid = checker.is_valid_batch(Q[unsure])
             assert not np.any((verdict == FREE) & ~valid), "free for the pass, in contact for FCL"

@@ -47,8 +47,8 @@ def test_what_the_layer_calls_free_fcl_and_pybullet_call_free(profile):
     fast = FastChecker(checker)
     Q = robot.random_q(rng, 10_000)
     layer, volume = fast.layer()
-    verdict = layer.classify(Q, robot.frames(Q), volume)
-    np.testing.assert_array_equal(layer.classify(Q, robot.frames(Q), volume, parallel=True), verdict)
+    verdict = layer.classify(Q, volume)
+    np.testing.assert_array_equal(layer.classify(Q, volume, parallel=True), verdict)
     clear, certain = verdict == FREE, verdict == CONTACT
     valid = checker.is_valid_batch(Q)
     assert not np.any(clear & ~valid)  # never free where FCL finds a contact

@@ -121,12 +121,12 @@ def _layer_rates(checker: CollisionChecker, Qs: list[np.ndarray], chunk: int) ->
     whole, par, chunked, with_fcl, shares, disagree, left = [], [], [], [], [], 0, []
     for r, Q in enumerate(Qs):
         t0 = time.perf_counter()
-        verdict = layer.classify(Q, robot.frames(Q), vol)
+        verdict = layer.classify(Q, vol)
         tp = time.perf_counter()
-        disagree += int((layer.classify(Q, robot.frames(Q), vol, parallel=True) != verdict).sum())
+        disagree += int((layer.classify(Q, vol, parallel=True) != verdict).sum())
         t1 = time.perf_counter()
         for i in range(0, len(Q), chunk):
-            layer.classify(Q[i : i + chunk], robot.frames(Q[i : i + chunk]), vol)
+            layer.classify(Q[i : i + chunk], vol)
         t2 = time.perf_counter()
         valid = np.concatenate([fast.is_valid_batch(Q[i : i + chunk]) for i in range(0, len(Q), chunk)])
         t3 = time.perf_counter()

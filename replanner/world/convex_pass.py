@@ -96,7 +96,7 @@ def _decide_all(
     for j in range(idx.shape[0]):
         n = idx[j]
         for b in range(B):
-            _place(frames[n, ball_slot[b]], ball_c, b, b + 1, BC)
+            _place(frames, n, ball_slot[b], ball_c, b, b + 1, BC)
             placed[b] = False
         verdict = APART
         for b in range(B):
@@ -104,12 +104,12 @@ def _decide_all(
             x, y, z = BC[b, 0], BC[b, 1], BC[b, 2]
             eg = env_pad * gf[b]
             for o in range(O):
-                if not env_mask[b, ob_id[o]] or _distance(ob_inv[o], ob_kind[o], ob_dim[o], x, y, z) > ball_r[b] + eg:
+                if not env_mask[b, ob_id[o]] or _distance(ob_inv, o, ob_kind[o], ob_dim, x, y, z) > ball_r[b] + eg:
                     continue
                 if not placed[b]:
-                    _place(F, local, first[b], first[b + 1], C)
+                    _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
                     placed[b] = True
-                if not spheres_meet_primitive(C, rad, first[b], first[b + 1], eg, ob_inv[o], ob_kind[o], ob_dim[o]):
+                if not spheres_meet_primitive(C, rad, first[b], first[b + 1], eg, ob_inv, o, ob_kind[o], ob_dim):
                     continue  # the covering spheres are clear of it: so is the body
                 if not (supported[b] and ob_exact[o]):
                     verdict = 0
@@ -127,7 +127,7 @@ def _decide_all(
                 g = ball_r[b] + map_pad * gf[b]
                 if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
                     if not placed[b]:
-                        _place(F, local, first[b], first[b + 1], C)
+                        _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
                         placed[b] = True
                     if spheres_meet_map(C, rad, first[b], first[b + 1], map_pad * gf[b], sat, key_min, inv_res):
                         verdict = 0
@@ -141,9 +141,9 @@ def _decide_all(
                     continue
                 for bo in (a, b):
                     if not placed[bo]:
-                        _place(frames[n, ball_slot[bo]], local, first[bo], first[bo + 1], C)
+                        _place(frames, n, ball_slot[bo], local, first[bo], first[bo + 1], C)
                         placed[bo] = True
-                if not spheres_meet_body(C, rad, first[a], first[a + 1], first[b], first[b + 1], BC[b], ball_r[b], sg):
+                if not spheres_meet_body(C, rad, first[a], first[a + 1], first[b], first[b + 1], BC, b, ball_r[b], sg):
                     continue
                 if not (supported[a] and supported[b]):
                     verdict = 0

@@ -16,8 +16,9 @@ def chain_frames(Q, F, prismatic, joints, parents, out):
 
     F (dof, 4, 4): joint j's frame at q = 0 in its parent's, z its axis; a revolute joint turns about z, a
     prismatic one slides along it. joints, parents: joint j and its parent's slot p (0: the base), parents first.
+    Every transform is homogeneous (last row 0, 0, 0, 1): its last row is neither read nor multiplied.
     """
-    L = np.empty((4, 4))
+    L = np.empty((3, 4))
     for n in range(Q.shape[0]):
         for r in range(4):
             for c in range(4):
@@ -26,15 +27,18 @@ def chain_frames(Q, F, prismatic, joints, parents, out):
             j, p = joints[k], parents[k]
             q = Q[n, j]
             cq, sq, d = (1.0, 0.0, q) if prismatic[j] else (np.cos(q), np.sin(q), 0.0)
-            for r in range(4):
+            for r in range(3):
                 L[r, 0] = F[j, r, 0] * cq + F[j, r, 1] * sq
                 L[r, 1] = F[j, r, 1] * cq - F[j, r, 0] * sq
                 L[r, 2] = F[j, r, 2]
                 L[r, 3] = F[j, r, 3] + F[j, r, 2] * d
-            for r in range(4):
+            for r in range(3):
                 a0, a1, a2, a3 = out[n, p, r, 0], out[n, p, r, 1], out[n, p, r, 2], out[n, p, r, 3]
-                for c in range(4):
-                    out[n, j + 1, r, c] = a0 * L[0, c] + a1 * L[1, c] + a2 * L[2, c] + a3 * L[3, c]
+                for c in range(3):
+                    out[n, j + 1, r, c] = a0 * L[0, c] + a1 * L[1, c] + a2 * L[2, c]
+                out[n, j + 1, r, 3] = a0 * L[0, 3] + a1 * L[1, 3] + a2 * L[2, 3] + a3
+            out[n, j + 1, 3, 0] = out[n, j + 1, 3, 1] = out[n, j + 1, 3, 2] = 0.0
+            out[n, j + 1, 3, 3] = 1.0
     return out
 
 

@@ -80,9 +80,12 @@ class FastChecker:
         """Validity (N,) of configurations Q (N, dof), as `checker.is_valid_batch` says."""
         Q = self._rows(Q)
         c = self._layers()
-        frames = self.checker.robot.frames(Q)
-        verdict = c[2].classify(Q, frames, c[3])
-        self._second(c, frames, verdict, np.flatnonzero(verdict == UNSURE))
+        verdict = c[2].classify(Q, c[3])
+        unsure = np.flatnonzero(verdict == UNSURE)
+        if self.convex and len(unsure):  # frames for the few the spheres left unsure only
+            verdict[unsure] = decide_batch(
+                c[4], c[2], self.checker.robot.frames(Q[unsure]), np.arange(len(unsure)), c[3]
+            )
         out = verdict == FREE
         if self.checker.check_limits:
             out &= ((Q >= self._lo) & (Q <= self._hi)).all(axis=1)

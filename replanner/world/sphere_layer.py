@@ -17,7 +17,7 @@ import numpy as np
 
 from .collision_scene import CollisionScene
 from .geometry import Box, Cylinder, Sphere, padding_directions
-from .kernels import kernel_array
+from .kernels import chain_frames, kernel_array
 from .occupancy import OccupancyMap
 from .scene import WorldSnapshot
 from .selfcollision import may_collide_row
@@ -71,6 +71,7 @@ class SphereScene:
         self.radius = np.concatenate(rad)
         self.body = np.array(body, dtype=np.int64)
         self.padding = float(padding)
+        self.fk = (robot._F, robot._prismatic, robot._joint_order, robot._chain_parents)  # the chain, for `classify`
         self.env_pad, self.map_pad, self.self_pad = float(padding), float(map_padding), float(robot.self_body_padding)
         # how far a padding p takes each padded body beyond its shape, per p (geometry.padded)
         self.gf = np.array([_grow_factor(b.raw_shape, grow) for b in scene.bodies])
@@ -127,39 +128,19 @@ class SphereScene:
         self.env_mask = np.ascontiguousarray(scene.env_mask)
         self.octree_mask = np.ascontiguousarray(scene.octree_mask)
 
-    def classify(
-        self,
-        Q: np.ndarray,
-        frames: np.ndarray,
-        volume: VoxelVolume | None,
-        order=None,
-        stop: bool = False,
-        parallel: bool = False,
-    ) -> np.ndarray:
-        """Per configuration Q (N, dof) with the robot's `frames` (N, 1 + dof, 4, 4): FREE (free for certain),
-        CONTACT (in contact for certain: a ball inside a body meets a primitive or a ball inside another body) or
-        UNSURE (ask FCL). `order`: the configurations to look at, in turn; `stop`: return at the first CONTACT
-        (the rest stay UNSURE). `parallel`: all of them on every core (large batches; not with order or stop)."""
-        out = np.zeros(len(frames), dtype=np.int8)
+    def classify(self, Q: np.ndarray, volume: VoxelVolume | None, parallel: bool = False) -> np.ndarray:
+        """Per configuration Q (N, dof): FREE (free for certain), CONTACT (in contact for certain: a ball inside a
+        body meets a primitive or a ball inside another body) or UNSURE (ask FCL). Forward kinematics runs inside,
+        one configuration at a time. `parallel`: on every core (large batches, one calling thread at a time)."""
+        out = np.zeros(len(Q), dtype=np.int8)
         vol = volume or VoxelVolume.EMPTY
-        F = kernel_array(frames)
-        common = (
-            self.local, self.radius, self.first, self.in_local, self.in_rad, self.in_first, self.ball_slot,
-            self.ball_c, self.ball_r, self.gf, self.env_pad, self.map_pad, self.self_pad, self.env_mask, self.ob_kind,
-            self.ob_inv, self.ob_dim, self.ob_id, self.ob_exact, self.octree_mask, vol.sat, vol.key_min, vol.inv_res,
-            self.pair_a, self.pair_b, out,
+        (_classify_parallel if parallel else _classify)(
+            kernel_array(Q), *self.fk, self.tab_i, self.tab_f, self.tab, self.local, self.radius, self.first,
+            self.in_local, self.in_rad, self.in_first, self.ball_slot, self.ball_c, self.ball_r, self.gf, self.env_pad,
+            self.map_pad, self.self_pad, self.env_mask, self.ob_kind, self.ob_inv, self.ob_dim, self.ob_id,
+            self.ob_exact, self.octree_mask, vol.sat, vol.key_min, vol.inv_res, self.pair_a, self.pair_b, out,
         )  # fmt: skip
-        rows = (kernel_array(Q), self.tab_i, self.tab_f, self.tab)
-        if parallel and order is None and not stop:
-            _classify_parallel(F, *rows, *common)
-        else:
-            order = np.arange(len(F), dtype=np.int64) if order is None else np.asarray(order, dtype=np.int64)
-            _classify(F, *rows, order, stop, *common)
         return out
-
-    def clear(self, Q: np.ndarray, frames: np.ndarray, volume: VoxelVolume | None) -> np.ndarray:
-        """Which configurations are free for certain (bool (N,)); False: in contact or ask FCL."""
-        return self.classify(Q, frames, volume) == FREE
 
 
 class VoxelVolume:
@@ -222,38 +203,41 @@ def _voxels_in(sat, key_min, inv_res, lo0, lo1, lo2, hi0, hi1, hi2):
     )
 
 
+# The helpers below take arrays and indices, never a row's view: a view costs a reference count in the hot loop.
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
-def _distance(M, k, dim, x, y, z):
-    """Distance [m] from point (x, y, z) to a solid primitive (0 inside): kind k, world -> primitive M (3, 4)."""
-    p0 = M[0, 0] * x + M[0, 1] * y + M[0, 2] * z + M[0, 3]
-    p1 = M[1, 0] * x + M[1, 1] * y + M[1, 2] * z + M[1, 3]
-    p2 = M[2, 0] * x + M[2, 1] * y + M[2, 2] * z + M[2, 3]
+def _distance(ob_inv, o, k, ob_dim, x, y, z):
+    """Distance [m] from point (x, y, z) to solid primitive o (0 inside): kind k, world -> primitive ob_inv[o]."""
+    p0 = ob_inv[o, 0, 0] * x + ob_inv[o, 0, 1] * y + ob_inv[o, 0, 2] * z + ob_inv[o, 0, 3]
+    p1 = ob_inv[o, 1, 0] * x + ob_inv[o, 1, 1] * y + ob_inv[o, 1, 2] * z + ob_inv[o, 1, 3]
+    p2 = ob_inv[o, 2, 0] * x + ob_inv[o, 2, 1] * y + ob_inv[o, 2, 2] * z + ob_inv[o, 2, 3]
     if k == 0:
-        q0 = max(abs(p0) - dim[0], 0.0)
-        q1 = max(abs(p1) - dim[1], 0.0)
-        q2 = max(abs(p2) - dim[2], 0.0)
+        q0 = max(abs(p0) - ob_dim[o, 0], 0.0)
+        q1 = max(abs(p1) - ob_dim[o, 1], 0.0)
+        q2 = max(abs(p2) - ob_dim[o, 2], 0.0)
         return np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
     if k == 1:
-        return max(np.sqrt(p0 * p0 + p1 * p1 + p2 * p2) - dim[0], 0.0)
-    qr = max(np.sqrt(p0 * p0 + p1 * p1) - dim[0], 0.0)
-    qz = max(abs(p2) - dim[1], 0.0)
+        return max(np.sqrt(p0 * p0 + p1 * p1 + p2 * p2) - ob_dim[o, 0], 0.0)
+    qr = max(np.sqrt(p0 * p0 + p1 * p1) - ob_dim[o, 0], 0.0)
+    qz = max(abs(p2) - ob_dim[o, 1], 0.0)
     return np.sqrt(qr * qr + qz * qz)
 
 
-@numba.njit(cache=True, nogil=True)
-def spheres_meet_primitive(C, rad, first, last, grow, M, kind, dim) -> bool:
-    """Whether any placed sphere C[first:last] (radii grown by `grow`) meets primitive (M, kind, dim)."""
+@numba.njit(cache=True, nogil=True, inline="always")
+def spheres_meet_primitive(C, rad, first, last, grow, ob_inv, o, kind, ob_dim) -> bool:
+    """Whether any placed sphere C[first:last] (radii grown by `grow`) meets primitive o of kind `kind`."""
     for s in range(first, last):
-        if _distance(M, kind, dim, C[s, 0], C[s, 1], C[s, 2]) <= rad[s] + grow:
+        if _distance(ob_inv, o, kind, ob_dim, C[s, 0], C[s, 1], C[s, 2]) <= rad[s] + grow:
             return True
     return False
 
 
-@numba.njit(cache=True, nogil=True)
-def spheres_meet_body(C, rad, a0, a1, b0, b1, ball, ball_r, grow) -> bool:
+@numba.njit(cache=True, nogil=True, inline="always")
+def spheres_meet_body(C, rad, a0, a1, b0, b1, BC, bb, ball_r, grow) -> bool:
     """Whether a placed sphere of C[a0:a1] meets one of C[b0:b1] (radii grown by `grow` together); the second
-    body's bounding ball (`ball`, `ball_r`) rules out most of the first's spheres."""
-    bx, by, bz, br = ball[0], ball[1], ball[2], ball_r + grow
+    body's bounding ball (centre BC[bb], radius `ball_r`) rules out most of the first's spheres."""
+    bx, by, bz, br = BC[bb, 0], BC[bb, 1], BC[bb, 2], ball_r + grow
     for a in range(a0, a1):
         d0, d1, d2 = C[a, 0] - bx, C[a, 1] - by, C[a, 2] - bz
         if d0 * d0 + d1 * d1 + d2 * d2 > (rad[a] + br) ** 2:
@@ -278,11 +262,17 @@ def spheres_meet_map(C, rad, first, last, grow, sat, key_min, inv_res) -> bool:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _place(F, P, first, last, out):
+def _place(frames, n, slot, P, first, last, out):
+    """out[first:last] = P[first:last] placed by the frame frames[n, slot]."""
     for s in range(first, last):
         x, y, z = P[s, 0], P[s, 1], P[s, 2]
         for r in range(3):
-            out[s, r] = F[r, 0] * x + F[r, 1] * y + F[r, 2] * z + F[r, 3]
+            out[s, r] = (
+                frames[n, slot, r, 0] * x
+                + frames[n, slot, r, 1] * y
+                + frames[n, slot, r, 2] * z
+                + frames[n, slot, r, 3]
+            )
 
 
 @numba.njit(cache=True, nogil=True)
@@ -295,7 +285,7 @@ def _one(
     placed: scratch space)."""
     B, O = ball_slot.shape[0], ob_kind.shape[0]
     for b in range(B):
-        _place(frames[n, ball_slot[b]], ball_c, b, b + 1, BC)
+        _place(frames, n, ball_slot[b], ball_c, b, b + 1, BC)
         placed[b] = False
     verdict = 1
     for b in range(B):
@@ -304,18 +294,16 @@ def _one(
         eg, mg = env_pad * gf[b], map_pad * gf[b]
         reach = ball_r[b] + eg
         for o in range(O):
-            if env_mask[b, ob_id[o]] and _distance(ob_inv[o], ob_kind[o], ob_dim[o], x, y, z) <= reach:
+            if env_mask[b, ob_id[o]] and _distance(ob_inv, o, ob_kind[o], ob_dim, x, y, z) <= reach:
                 near[m] = o
                 m += 1
         if m > 0 and not placed[b]:
-            _place(frames[n, ball_slot[b]], local, first[b], first[b + 1], C)
-            _place(frames[n, ball_slot[b]], in_local, in_first[b], in_first[b + 1], IC)
+            _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
+            _place(frames, n, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
             placed[b] = True
         hit = False  # a covering sphere meets an obstacle: then maybe an inner ball does too (certain)
         for i in range(m):
-            if spheres_meet_primitive(
-                C, rad, first[b], first[b + 1], eg, ob_inv[near[i]], ob_kind[near[i]], ob_dim[near[i]]
-            ):
+            if spheres_meet_primitive(C, rad, first[b], first[b + 1], eg, ob_inv, near[i], ob_kind[near[i]], ob_dim):
                 hit = True
                 break
         if hit:
@@ -325,7 +313,7 @@ def _one(
                 if not ob_exact[o]:
                     continue
                 for k in range(in_first[b], in_first[b + 1]):
-                    if _distance(ob_inv[o], ob_kind[o], ob_dim[o], IC[k, 0], IC[k, 1], IC[k, 2]) < in_rad[k]:
+                    if _distance(ob_inv, o, ob_kind[o], ob_dim, IC[k, 0], IC[k, 1], IC[k, 2]) < in_rad[k]:
                         verdict = -1
                         break
                 if verdict == -1:
@@ -336,8 +324,8 @@ def _one(
             g = ball_r[b] + mg
             if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
                 if not placed[b]:
-                    _place(frames[n, ball_slot[b]], local, first[b], first[b + 1], C)
-                    _place(frames[n, ball_slot[b]], in_local, in_first[b], in_first[b + 1], IC)
+                    _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
+                    _place(frames, n, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
                     placed[b] = True
                 if spheres_meet_map(C, rad, first[b], first[b + 1], mg, sat, key_min, inv_res):
                     verdict = 0
@@ -351,11 +339,11 @@ def _one(
                 continue  # the two bodies' balls are apart
             for bo in (ba, bb):
                 if not placed[bo]:
-                    _place(frames[n, ball_slot[bo]], local, first[bo], first[bo + 1], C)
-                    _place(frames[n, ball_slot[bo]], in_local, in_first[bo], in_first[bo + 1], IC)
+                    _place(frames, n, ball_slot[bo], local, first[bo], first[bo + 1], C)
+                    _place(frames, n, ball_slot[bo], in_local, in_first[bo], in_first[bo + 1], IC)
                     placed[bo] = True
             if not spheres_meet_body(
-                C, rad, first[ba], first[ba + 1], first[bb], first[bb + 1], BC[bb], ball_r[bb], sg
+                C, rad, first[ba], first[ba + 1], first[bb], first[bb + 1], BC, bb, ball_r[bb], sg
             ):
                 continue
             verdict = 0
@@ -377,38 +365,37 @@ def _one(
 
 @numba.njit(cache=True, nogil=True)
 def _classify(
-    frames, Q, tab_i, tab_f, table, order, stop, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c,
-    ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+    Q, Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot,
+    ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
     octree_mask, sat, key_min, inv_res, pair_a, pair_b, out,
 ):  # fmt: skip
+    dof = Q.shape[1]
+    frames, row = np.empty((1, dof + 1, 4, 4)), np.empty((1, dof))  # one configuration's frames stay in cache
     C, IC = np.empty((local.shape[0], 3)), np.empty((in_local.shape[0], 3))
     BC, near = np.empty((ball_slot.shape[0], 3)), np.empty(ob_kind.shape[0], np.int64)
     placed = np.zeros(ball_slot.shape[0], np.bool_)  # a body's spheres are placed only when its ball meets something
-    for n in order:
-        v = _one(
-            n, frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
-            gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+    for n in range(Q.shape[0]):
+        for j in range(dof):
+            row[0, j] = Q[n, j]
+        chain_frames(row, Fj, prismatic, joints, parents, frames)
+        out[n] = _one(
+            0, frames, row, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c,
+            ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
             octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
         )  # fmt: skip
-        out[n] = v
-        if v == -1 and stop:
-            return
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _classify_parallel(
-    frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
-    gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+    Q, Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot,
+    ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
     octree_mask, sat, key_min, inv_res, pair_a, pair_b, out,
 ):  # fmt: skip
-    N, chunk = frames.shape[0], 256
+    N, chunk = Q.shape[0], 256
     for c in numba.prange((N + chunk - 1) // chunk):
-        C, IC = np.empty((local.shape[0], 3)), np.empty((in_local.shape[0], 3))
-        BC, near = np.empty((ball_slot.shape[0], 3)), np.empty(ob_kind.shape[0], np.int64)
-        placed = np.zeros(ball_slot.shape[0], np.bool_)
-        for n in range(c * chunk, min(N, (c + 1) * chunk)):
-            out[n] = _one(
-                n, frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c,
-                ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
-                octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
-            )  # fmt: skip
+        lo, hi = c * chunk, min(N, (c + 1) * chunk)
+        _classify(
+            Q[lo:hi], Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad,
+            in_first, ball_slot, ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim,
+            ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b, out[lo:hi],
+        )  # fmt: skip
