@@ -10,6 +10,33 @@ import numba
 import numpy as np
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def frames_of(Q, n, F, prismatic, joints, parents, out, m):
+    """out[m] = the frames (1 + dof, 4, 4) of configuration Q[n] (see chain_frames); inlined into the callers' loops:
+    a call per configuration with a dozen arrays would cost more in reference counting than the arithmetic."""
+    for r in range(4):
+        for c in range(4):
+            out[m, 0, r, c] = 1.0 if r == c else 0.0
+    for k in range(joints.shape[0]):
+        j, p = joints[k], parents[k]
+        q = Q[n, j]
+        cq, sq, d = (1.0, 0.0, q) if prismatic[j] else (np.cos(q), np.sin(q), 0.0)
+        # local_j(q) = F[j] @ (rotation about z by q, or translation along z by d): rows 0-2
+        l00, l01 = F[j, 0, 0] * cq + F[j, 0, 1] * sq, F[j, 0, 1] * cq - F[j, 0, 0] * sq
+        l10, l11 = F[j, 1, 0] * cq + F[j, 1, 1] * sq, F[j, 1, 1] * cq - F[j, 1, 0] * sq
+        l20, l21 = F[j, 2, 0] * cq + F[j, 2, 1] * sq, F[j, 2, 1] * cq - F[j, 2, 0] * sq
+        l02, l12, l22 = F[j, 0, 2], F[j, 1, 2], F[j, 2, 2]
+        l03, l13, l23 = F[j, 0, 3] + F[j, 0, 2] * d, F[j, 1, 3] + F[j, 1, 2] * d, F[j, 2, 3] + F[j, 2, 2] * d
+        for r in range(3):
+            a0, a1, a2, a3 = out[m, p, r, 0], out[m, p, r, 1], out[m, p, r, 2], out[m, p, r, 3]
+            out[m, j + 1, r, 0] = a0 * l00 + a1 * l10 + a2 * l20
+            out[m, j + 1, r, 1] = a0 * l01 + a1 * l11 + a2 * l21
+            out[m, j + 1, r, 2] = a0 * l02 + a1 * l12 + a2 * l22
+            out[m, j + 1, r, 3] = a0 * l03 + a1 * l13 + a2 * l23 + a3
+        out[m, j + 1, 3, 0] = out[m, j + 1, 3, 1] = out[m, j + 1, 3, 2] = 0.0
+        out[m, j + 1, 3, 3] = 1.0
+
+
 @numba.njit(cache=True, nogil=True)
 def chain_frames(Q, F, prismatic, joints, parents, out):
     """Frames out (N, 1 + dof, 4, 4) of a joint chain: out[:, 0] = I, out[:, 1 + j] = out[:, p] @ local_j(q_j).
@@ -18,27 +45,8 @@ def chain_frames(Q, F, prismatic, joints, parents, out):
     prismatic one slides along it. joints, parents: joint j and its parent's slot p (0: the base), parents first.
     Every transform is homogeneous (last row 0, 0, 0, 1): its last row is neither read nor multiplied.
     """
-    L = np.empty((3, 4))
     for n in range(Q.shape[0]):
-        for r in range(4):
-            for c in range(4):
-                out[n, 0, r, c] = 1.0 if r == c else 0.0
-        for k in range(joints.shape[0]):
-            j, p = joints[k], parents[k]
-            q = Q[n, j]
-            cq, sq, d = (1.0, 0.0, q) if prismatic[j] else (np.cos(q), np.sin(q), 0.0)
-            for r in range(3):
-                L[r, 0] = F[j, r, 0] * cq + F[j, r, 1] * sq
-                L[r, 1] = F[j, r, 1] * cq - F[j, r, 0] * sq
-                L[r, 2] = F[j, r, 2]
-                L[r, 3] = F[j, r, 3] + F[j, r, 2] * d
-            for r in range(3):
-                a0, a1, a2, a3 = out[n, p, r, 0], out[n, p, r, 1], out[n, p, r, 2], out[n, p, r, 3]
-                for c in range(3):
-                    out[n, j + 1, r, c] = a0 * L[0, c] + a1 * L[1, c] + a2 * L[2, c]
-                out[n, j + 1, r, 3] = a0 * L[0, 3] + a1 * L[1, 3] + a2 * L[2, 3] + a3
-            out[n, j + 1, 3, 0] = out[n, j + 1, 3, 1] = out[n, j + 1, 3, 2] = 0.0
-            out[n, j + 1, 3, 3] = 1.0
+        frames_of(Q, n, F, prismatic, joints, parents, out, n)
     return out
 
 

@@ -11,9 +11,8 @@ import copy
 import numba
 import numpy as np
 
-from .kernels import chain_frames
 from .selfcollision import may_collide_row
-from .sphere_layer import SphereScene, VoxelVolume, _one
+from .sphere_layer import SphereScene, VoxelVolume, verdicts
 
 STRIDE = 8  # every 8th configuration first: a contact is usually found early
 AHEAD = 0.02  # [m] the margin of an anchor's check: free with it, its neighbours within that travel are too
@@ -34,34 +33,31 @@ class BoundMotion:
     def __init__(self, robot, layer: SphereScene, vol: VoxelVolume, lo, hi, reach, ahead: float = AHEAD):
         limits = lo is not None
         dof = robot.dof
+        self.ahead = float(ahead)
         self.args = (
             np.asarray(lo if limits else np.full(dof, -np.inf), np.float64),
             np.asarray(hi if limits else np.full(dof, np.inf), np.float64),
-            np.ascontiguousarray(reach, dtype=np.float64), float(ahead), layer.reach, robot._F, robot._prismatic,
-            robot._joint_order, robot._chain_parents, layer.tab_i, layer.tab_f, layer.tab, layer.local, layer.radius,
-            layer.first, layer.in_local, layer.in_rad, layer.in_first, layer.ball_slot, layer.ball_c, layer.ball_r,
-            layer.gf, layer.env_pad, layer.map_pad, layer.self_pad, layer.env_mask, layer.ob_kind, layer.ob_inv,
-            layer.ob_dim, layer.ob_id, layer.ob_exact, layer.octree_mask, vol.sat, vol.key_min, vol.inv_res,
-            layer.pair_a, layer.pair_b,
+            np.ascontiguousarray(reach, dtype=np.float64), layer.reach, layer.env_pad, layer.map_pad, layer.self_pad,
+            *layer.kernel_args(vol),
         )  # fmt: skip
 
     def with_ahead(self, ahead: float) -> BoundMotion:
         """The same check with another anchor margin `ahead` [m] (0: every configuration on its own)."""
         other = copy.copy(self)
-        other.args = self.args[:3] + (float(ahead),) + self.args[4:]
+        other.ahead = float(ahead)
         return other
 
     def __call__(self, a: np.ndarray, b: np.ndarray, resolution: float) -> tuple[int, np.ndarray, int]:
         """(verdict, unsure, steps) of the motion a -> b (float64 (dof,)) checked every `resolution` [m]: verdict
         -1 if a configuration is in contact for certain, OUTSIDE if an end is outside the limits, else 1 with the
         indices k of the configurations a + k / steps (b - a) the layer could not decide. resolution 0: a alone."""
-        return _checked_motion(a, b, resolution, *self.args)
+        return _checked_motion(a, b, resolution, self.ahead, *self.args)
 
 
 @numba.njit(cache=True, nogil=True)
 def _checked_motion(
-    a, b, resolution, lo, hi, reach, ahead, layer_reach, F, prismatic, joints, parents, tab_i, tab_f, table, local,
-    rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask,
+    a, b, resolution, ahead, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints, parents,
+    tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask,
     ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b,
 ):  # fmt: skip
     travel = 0.0
@@ -70,76 +66,53 @@ def _checked_motion(
             return OUTSIDE, np.empty(0, np.int64), 0
         travel += abs(b[j] - a[j]) * reach[j]
     steps = 0 if resolution <= 0.0 else max(1, np.int64(np.ceil(travel / resolution)))
-    unsure = np.empty(steps + 1, np.int64)
-    m = _motion(
-        a, b, steps, ahead, layer_reach, F, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first,
-        in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind,
-        ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b, unsure,
-    )  # fmt: skip
-    return (-1, unsure[:0], steps) if m < 0 else (1, unsure[:m], steps)
-
-
-@numba.njit(cache=True, nogil=True)
-def _motion(
-    a, b, steps, ahead, layer_reach, F, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local,
-    in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim,
-    ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b, unsure,
-):  # fmt: skip
-    dof = a.shape[0]
-    Q = np.empty((1, dof))
-    frames = np.empty((1, dof + 1, 4, 4))
-    C, IC = np.empty((local.shape[0], 3)), np.empty((in_local.shape[0], 3))
-    BC, near = np.empty((ball_slot.shape[0], 3)), np.empty(ob_kind.shape[0], np.int64)
-    placed = np.zeros(ball_slot.shape[0], np.bool_)
+    Q = np.empty((steps + 1, a.shape[0]))
+    for k in range(steps + 1):
+        for j in range(a.shape[0]):
+            Q[k, j] = a[j] + k / steps * (b[j] - a[j]) if k < steps else b[j]
+    v = np.zeros(steps + 1, np.int8)
+    known = np.zeros(steps + 1, np.bool_)  # free for certain without a check of its own
     # anchors every 2J + 1 configurations, checked with every padding grown by `ahead`: free there, the J on
     # each side are free too, as no sphere centre moves more than J steps' travel <= ahead (relative: 2 x, and
     # a self pair's padding grows by 2 x ahead at least)
     travel = 0.0
-    for j in range(dof):
+    for j in range(a.shape[0]):
         travel += abs(b[j] - a[j]) * layer_reach[j]
     J = steps if travel <= 0.0 else min(steps, np.int64(np.floor(ahead * max(steps, 1) / travel)))
-    known = np.zeros(steps + 1, np.bool_)  # free for certain without a check of its own
     if ahead > 0.0 and J >= 1:
-        for anchor in range(J, steps + J + 1, 2 * J + 1):
-            k = min(anchor, steps)
-            _at(a, b, k, steps, Q)
-            chain_frames(Q, F, prismatic, joints, parents, frames)
-            v = _one(
-                0, frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c,
-                ball_r, gf, env_pad + ahead, map_pad + ahead, self_pad + ahead, env_mask, ob_kind, ob_inv, ob_dim,
-                ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
-            )  # fmt: skip
-            if v == -1:
-                return -1  # an inner ball's contact: no padding takes part in it
-            if v == 1:
+        anchors = np.minimum(np.arange(J, steps + J + 1, 2 * J + 1), steps)
+        if verdicts(
+            Q, anchors, True, env_pad + ahead, map_pad + ahead, self_pad + ahead, F, prismatic, joints, parents,
+            tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
+            env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b, v,
+        ) >= 0:  # fmt: skip
+            return -1, np.empty(0, np.int64), steps  # an inner ball's contact: no padding takes part in it
+        for k in anchors:
+            if v[k] == 1:
                 known[max(k - J, 0) : k + J + 1] = True
+    order = np.empty(steps + 1, np.int64)  # the rest, every 8th first: a contact is usually found early
     m = 0
+    for phase in range(2):
+        for k in range(steps + 1):
+            if (k % STRIDE == 0) == (phase == 0) and not known[k]:
+                order[m] = k
+                m += 1
+    if verdicts(
+        Q, order[:m], True, env_pad, map_pad, self_pad, F, prismatic, joints, parents, tab_i, tab_f, table, local,
+        rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind, ob_inv, ob_dim,
+        ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b, v,
+    ) >= 0:  # fmt: skip
+        return -1, np.empty(0, np.int64), steps
+    unsure = np.empty(steps + 1, np.int64)
+    u = 0
     for phase in range(2):
         for k in range(steps + 1):
             if (k % STRIDE == 0) != (phase == 0):
                 continue
-            _at(a, b, k, steps, Q)
-            if known[k]:
-                if tab_i.shape[0] and may_collide_row(Q[0], tab_i, tab_f, table):
-                    unsure[m] = k  # the always-close pairs' tables are not spheres: each configuration asks
-                    m += 1
-                continue
-            chain_frames(Q, F, prismatic, joints, parents, frames)
-            v = _one(
-                0, frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c,
-                ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
-                octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
-            )  # fmt: skip
-            if v == -1:
-                return -1
-            if v == 0:
-                unsure[m] = k
-                m += 1
-    return m
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _at(a, b, k, steps, Q):
-    """Q[0] = configuration k of `steps` from a to b (b itself at the end)."""
-    for j in range(a.shape[0]):
-        Q[0, j] = a[j] + k / steps * (b[j] - a[j]) if k < steps else b[j]
+            # the always-close pairs' tables are not spheres: a configuration cleared by an anchor still asks them
+            if (v[k] == 0 and not known[k]) or (
+                known[k] and tab_i.shape[0] and may_collide_row(Q, k, tab_i, tab_f, table)
+            ):
+                unsure[u] = k
+                u += 1
+    return 1, unsure[:u], steps

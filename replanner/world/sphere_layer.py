@@ -17,7 +17,7 @@ import numpy as np
 
 from .collision_scene import CollisionScene
 from .geometry import Box, Cylinder, Sphere, padding_directions
-from .kernels import chain_frames, kernel_array
+from .kernels import frames_of, kernel_array
 from .occupancy import OccupancyMap
 from .scene import WorldSnapshot
 from .selfcollision import may_collide_row
@@ -133,14 +133,23 @@ class SphereScene:
         body meets a primitive or a ball inside another body) or UNSURE (ask FCL). Forward kinematics runs inside,
         one configuration at a time. `parallel`: on every core (large batches, one calling thread at a time)."""
         out = np.zeros(len(Q), dtype=np.int8)
-        vol = volume or VoxelVolume.EMPTY
-        (_classify_parallel if parallel else _classify)(
-            kernel_array(Q), *self.fk, self.tab_i, self.tab_f, self.tab, self.local, self.radius, self.first,
-            self.in_local, self.in_rad, self.in_first, self.ball_slot, self.ball_c, self.ball_r, self.gf, self.env_pad,
-            self.map_pad, self.self_pad, self.env_mask, self.ob_kind, self.ob_inv, self.ob_dim, self.ob_id,
-            self.ob_exact, self.octree_mask, vol.sat, vol.key_min, vol.inv_res, self.pair_a, self.pair_b, out,
-        )  # fmt: skip
+        Q = kernel_array(Q)
+        args = (self.env_pad, self.map_pad, self.self_pad, *self.kernel_args(volume), out)
+        if parallel:
+            _classify_parallel(Q, *args)
+        else:
+            verdicts(Q, np.arange(len(Q)), False, *args)
         return out
+
+    def kernel_args(self, volume: VoxelVolume | None) -> tuple:
+        """`verdicts`' arguments from Fj to pair_b: the chain, the spheres, the obstacles and the map's volume."""
+        vol = volume or VoxelVolume.EMPTY
+        return (
+            *self.fk, self.tab_i, self.tab_f, self.tab, self.local, self.radius, self.first, self.in_local, self.in_rad,
+            self.in_first, self.ball_slot, self.ball_c, self.ball_r, self.gf, self.env_mask, self.ob_kind, self.ob_inv,
+            self.ob_dim, self.ob_id, self.ob_exact, self.octree_mask, vol.sat, vol.key_min, vol.inv_res, self.pair_a,
+            self.pair_b,
+        )  # fmt: skip
 
 
 class VoxelVolume:
@@ -178,7 +187,7 @@ class VoxelVolume:
 VoxelVolume.EMPTY = VoxelVolume(np.zeros((0, 3), np.int64), 1.0)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _voxels_in(sat, key_min, inv_res, lo0, lo1, lo2, hi0, hi1, hi2):
     """Voxels whose cube meets the box [lo, hi] [m] (a summed-volume table with a zero first plane per axis)."""
     n0, n1, n2 = sat.shape[0] - 1, sat.shape[1] - 1, sat.shape[2] - 1
@@ -250,7 +259,7 @@ def spheres_meet_body(C, rad, a0, a1, b0, b1, BC, bb, ball_r, grow) -> bool:
     return False
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def spheres_meet_map(C, rad, first, last, grow, sat, key_min, inv_res) -> bool:
     """Whether any placed sphere C[first:last] (radii grown by `grow`) may meet a voxel of the map."""
     for s in range(first, last):
@@ -276,126 +285,118 @@ def _place(frames, n, slot, P, first, last, out):
 
 
 @numba.njit(cache=True, nogil=True)
-def _one(
-    n, frames, Q, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r,
-    gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
-    octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
-):  # fmt: skip
-    """The verdict on configuration n: 1 free for certain, -1 in contact for certain, 0 unsure (C, IC, BC, near,
-    placed: scratch space)."""
-    B, O = ball_slot.shape[0], ob_kind.shape[0]
-    for b in range(B):
-        _place(frames, n, ball_slot[b], ball_c, b, b + 1, BC)
-        placed[b] = False
-    verdict = 1
-    for b in range(B):
-        x, y, z = BC[b, 0], BC[b, 1], BC[b, 2]
-        m = 0  # the obstacles this body's ball meets: only they are tested sphere by sphere
-        eg, mg = env_pad * gf[b], map_pad * gf[b]
-        reach = ball_r[b] + eg
-        for o in range(O):
-            if env_mask[b, ob_id[o]] and _distance(ob_inv, o, ob_kind[o], ob_dim, x, y, z) <= reach:
-                near[m] = o
-                m += 1
-        if m > 0 and not placed[b]:
-            _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
-            _place(frames, n, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
-            placed[b] = True
-        hit = False  # a covering sphere meets an obstacle: then maybe an inner ball does too (certain)
-        for i in range(m):
-            if spheres_meet_primitive(C, rad, first[b], first[b + 1], eg, ob_inv, near[i], ob_kind[near[i]], ob_dim):
-                hit = True
-                break
-        if hit:
-            verdict = 0
-            for i in range(m):
-                o = near[i]
-                if not ob_exact[o]:
-                    continue
-                for k in range(in_first[b], in_first[b + 1]):
-                    if _distance(ob_inv, o, ob_kind[o], ob_dim, IC[k, 0], IC[k, 1], IC[k, 2]) < in_rad[k]:
-                        verdict = -1
-                        break
-                if verdict == -1:
-                    break
-            if verdict == -1:
-                break
-        if verdict == 1 and octree_mask[b]:
-            g = ball_r[b] + mg
-            if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
-                if not placed[b]:
-                    _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
-                    _place(frames, n, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
-                    placed[b] = True
-                if spheres_meet_map(C, rad, first[b], first[b + 1], mg, sat, key_min, inv_res):
-                    verdict = 0
-    if verdict != -1:
-        for p in range(pair_a.shape[0]):
-            ba, bb = pair_a[p], pair_b[p]
-            d0, d1, d2 = BC[ba, 0] - BC[bb, 0], BC[ba, 1] - BC[bb, 1], BC[ba, 2] - BC[bb, 2]
-            sg = self_pad * (gf[ba] + gf[bb])
-            reach = ball_r[ba] + ball_r[bb] + sg
-            if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach:
-                continue  # the two bodies' balls are apart
-            for bo in (ba, bb):
-                if not placed[bo]:
-                    _place(frames, n, ball_slot[bo], local, first[bo], first[bo + 1], C)
-                    _place(frames, n, ball_slot[bo], in_local, in_first[bo], in_first[bo + 1], IC)
-                    placed[bo] = True
-            if not spheres_meet_body(
-                C, rad, first[ba], first[ba + 1], first[bb], first[bb + 1], BC, bb, ball_r[bb], sg
-            ):
-                continue
-            verdict = 0
-            for a in range(in_first[ba], in_first[ba + 1]):  # two inner balls overlap: a contact for certain
-                for c in range(in_first[bb], in_first[bb + 1]):
-                    d0, d1, d2 = IC[a, 0] - IC[c, 0], IC[a, 1] - IC[c, 1], IC[a, 2] - IC[c, 2]
-                    reach = in_rad[a] + in_rad[c]
-                    if d0 * d0 + d1 * d1 + d2 * d2 < reach * reach:
-                        verdict = -1
-                        break
-                if verdict == -1:
-                    break
-            if verdict == -1:
-                break
-    if verdict == 1 and tab_i.shape[0] and may_collide_row(Q[n], tab_i, tab_f, table):
-        verdict = 0  # the always-close pairs: their tables may only say "maybe"
-    return verdict
-
-
-@numba.njit(cache=True, nogil=True)
-def _classify(
-    Q, Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot,
-    ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
+def verdicts(
+    Q, order, stop, env_pad, map_pad, self_pad, Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first,
+    in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
     octree_mask, sat, key_min, inv_res, pair_a, pair_b, out,
 ):  # fmt: skip
-    dof = Q.shape[1]
-    frames, row = np.empty((1, dof + 1, 4, 4)), np.empty((1, dof))  # one configuration's frames stay in cache
+    """out[n] for each n of `order` in turn: the verdict on configuration Q[n], forward kinematics included (1 free
+    for certain, -1 in contact for certain, 0 unsure). `stop`: return at the first contact, its index in `order`;
+    else (or none) -1. One loop with everything inlined: a call per configuration with these arrays would cost more
+    in reference counting than the configuration's own checks."""
+    B, O, dof = ball_slot.shape[0], ob_kind.shape[0], Q.shape[1]
+    frames = np.empty((1, dof + 1, 4, 4))  # one configuration's frames: they stay in cache
     C, IC = np.empty((local.shape[0], 3)), np.empty((in_local.shape[0], 3))
-    BC, near = np.empty((ball_slot.shape[0], 3)), np.empty(ob_kind.shape[0], np.int64)
-    placed = np.zeros(ball_slot.shape[0], np.bool_)  # a body's spheres are placed only when its ball meets something
-    for n in range(Q.shape[0]):
-        for j in range(dof):
-            row[0, j] = Q[n, j]
-        chain_frames(row, Fj, prismatic, joints, parents, frames)
-        out[n] = _one(
-            0, frames, row, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c,
-            ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
-            octree_mask, sat, key_min, inv_res, pair_a, pair_b, C, IC, BC, near, placed,
-        )  # fmt: skip
+    BC, near = np.empty((B, 3)), np.empty(O, np.int64)
+    placed = np.zeros(B, np.bool_)  # a body's spheres are placed only when its ball meets something
+    for t in range(order.shape[0]):
+        n = order[t]
+        frames_of(Q, n, Fj, prismatic, joints, parents, frames, 0)
+        for b in range(B):
+            _place(frames, 0, ball_slot[b], ball_c, b, b + 1, BC)
+            placed[b] = False
+        verdict = 1
+        for b in range(B):
+            x, y, z = BC[b, 0], BC[b, 1], BC[b, 2]
+            m = 0  # the obstacles this body's ball meets: only they are tested sphere by sphere
+            eg, mg = env_pad * gf[b], map_pad * gf[b]
+            reach = ball_r[b] + eg
+            for o in range(O):
+                if env_mask[b, ob_id[o]] and _distance(ob_inv, o, ob_kind[o], ob_dim, x, y, z) <= reach:
+                    near[m] = o
+                    m += 1
+            if m > 0 and not placed[b]:
+                _place(frames, 0, ball_slot[b], local, first[b], first[b + 1], C)
+                _place(frames, 0, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
+                placed[b] = True
+            hit = False  # a covering sphere meets an obstacle: then maybe an inner ball does too (certain)
+            for i in range(m):
+                if spheres_meet_primitive(
+                    C, rad, first[b], first[b + 1], eg, ob_inv, near[i], ob_kind[near[i]], ob_dim
+                ):
+                    hit = True
+                    break
+            if hit:
+                verdict = 0
+                for i in range(m):
+                    o = near[i]
+                    if not ob_exact[o]:
+                        continue
+                    for k in range(in_first[b], in_first[b + 1]):
+                        if _distance(ob_inv, o, ob_kind[o], ob_dim, IC[k, 0], IC[k, 1], IC[k, 2]) < in_rad[k]:
+                            verdict = -1
+                            break
+                    if verdict == -1:
+                        break
+                if verdict == -1:
+                    break
+            if verdict == 1 and octree_mask[b]:
+                g = ball_r[b] + mg
+                if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
+                    if not placed[b]:
+                        _place(frames, 0, ball_slot[b], local, first[b], first[b + 1], C)
+                        _place(frames, 0, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
+                        placed[b] = True
+                    if spheres_meet_map(C, rad, first[b], first[b + 1], mg, sat, key_min, inv_res):
+                        verdict = 0
+        if verdict != -1:
+            for p in range(pair_a.shape[0]):
+                ba, bb = pair_a[p], pair_b[p]
+                d0, d1, d2 = BC[ba, 0] - BC[bb, 0], BC[ba, 1] - BC[bb, 1], BC[ba, 2] - BC[bb, 2]
+                sg = self_pad * (gf[ba] + gf[bb])
+                reach = ball_r[ba] + ball_r[bb] + sg
+                if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach:
+                    continue  # the two bodies' balls are apart
+                for bo in (ba, bb):
+                    if not placed[bo]:
+                        _place(frames, 0, ball_slot[bo], local, first[bo], first[bo + 1], C)
+                        _place(frames, 0, ball_slot[bo], in_local, in_first[bo], in_first[bo + 1], IC)
+                        placed[bo] = True
+                if not spheres_meet_body(
+                    C, rad, first[ba], first[ba + 1], first[bb], first[bb + 1], BC, bb, ball_r[bb], sg
+                ):
+                    continue
+                verdict = 0
+                for a in range(in_first[ba], in_first[ba + 1]):  # two inner balls overlap: a contact for certain
+                    for c in range(in_first[bb], in_first[bb + 1]):
+                        d0, d1, d2 = IC[a, 0] - IC[c, 0], IC[a, 1] - IC[c, 1], IC[a, 2] - IC[c, 2]
+                        reach = in_rad[a] + in_rad[c]
+                        if d0 * d0 + d1 * d1 + d2 * d2 < reach * reach:
+                            verdict = -1
+                            break
+                    if verdict == -1:
+                        break
+                if verdict == -1:
+                    break
+        if verdict == 1 and tab_i.shape[0] and may_collide_row(Q, n, tab_i, tab_f, table):
+            verdict = 0  # the always-close pairs: their tables may only say "maybe"
+        out[n] = verdict
+        if verdict == -1 and stop:
+            return t
+    return -1
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _classify_parallel(
-    Q, Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot,
-    ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
-    octree_mask, sat, key_min, inv_res, pair_a, pair_b, out,
+    Q, env_pad, map_pad, self_pad, Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local,
+    in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask,
+    sat, key_min, inv_res, pair_a, pair_b, out,
 ):  # fmt: skip
     N, chunk = Q.shape[0], 256
     for c in numba.prange((N + chunk - 1) // chunk):
         lo, hi = c * chunk, min(N, (c + 1) * chunk)
-        _classify(
-            Q[lo:hi], Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad,
-            in_first, ball_slot, ball_c, ball_r, gf, env_pad, map_pad, self_pad, env_mask, ob_kind, ob_inv, ob_dim,
-            ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b, out[lo:hi],
+        verdicts(
+            Q, np.arange(lo, hi), False, env_pad, map_pad, self_pad, Fj, prismatic, joints, parents, tab_i, tab_f,
+            table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind,
+            ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, key_min, inv_res, pair_a, pair_b, out,
         )  # fmt: skip
