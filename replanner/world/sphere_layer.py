@@ -1,7 +1,7 @@
 """The fast, conservative layer of the collision checker: the robot (and what it carries) as spheres that cover
 its bodies, static objects as primitives (boxes, spheres, cylinders exactly; other shapes as covering spheres),
-the occupancy map as a summed-volume table of its voxels. `clear` says which configurations are free for certain;
-FCL decides the rest, so every verdict stays FCL's and only the near misses pay for it.
+the occupancy map as a summed-volume table of its voxels. `classify` says which configurations are free (or in
+contact) for certain; FCL decides the rest, so every verdict stays FCL's and only the near misses pay for it.
 
 Every test is conservative: a sphere grown by as far as FCL's padded shape reaches (a polytope's inradius factor,
 √3 paddings at a padded box's corners), a voxel
