@@ -10,7 +10,7 @@ from replanner.world.collision import CollisionChecker
 from replanner.world.geometry import Box, Cylinder, Sphere, sample_surface
 from replanner.world.layered import FastChecker
 from replanner.world.scene import World
-from replanner.world.sphere_layer import CONTACT, FREE
+from replanner.world.sphere_layer import CONTACT, FREE, UNSURE
 from replanner.world.spheres import cover
 from replanner.world.transforms import make_transform
 from tests.oracle import HULL_MARGIN, PyBulletOracle
@@ -113,3 +113,33 @@ def test_anchored_motion_checks_give_every_configurations_own_verdict(profile):
             else:
                 kinds.add("contact")
     assert kinds == {"free", "unsure", "contact"}  # every kind of verdict was compared
+
+
+def test_a_motion_check_gives_the_layers_verdicts_on_its_configurations_every_eighth_first(profile):
+    """The motion pass and `classify` run the same compiled loop: a motion is in contact when one of its
+    configurations is, else it leaves to FCL exactly those `classify` calls unsure, every 8th configuration first."""
+    cfg, robot = profile
+    rng = np.random.default_rng(12)
+    world = World(robot)
+    add_table(world)
+    world.add("post", Cylinder(radius=0.05, length=0.8), make_transform((0.45, 0.35, 0.4), (0, 0, 0, 1)))
+    world.set_occupancy(clutter_map(rng, 5_000))
+    fast = FastChecker(CollisionChecker.from_config(robot, world, cfg.collision))
+    layer, volume = fast.layer()
+    each = fast.motion().with_ahead(0.0)
+    A = robot.random_q(rng, 300)
+    B = np.clip(A + rng.normal(0, 0.3, A.shape), robot.limits.lower, robot.limits.upper)
+    kinds = set()
+    for a, b in zip(A, B):
+        v, unsure, steps = each(a, b, 0.01)
+        Q = a + (np.arange(steps + 1) / steps)[:, None] * (b - a)
+        Q[-1] = b
+        verdict = layer.classify(Q, volume)
+        if (verdict == CONTACT).any():
+            assert v == -1
+            kinds.add("contact")
+            continue
+        order = [k for k in range(steps + 1) if k % 8 == 0] + [k for k in range(steps + 1) if k % 8]
+        assert v == 1 and list(unsure) == [k for k in order if verdict[k] == UNSURE]
+        kinds.add("unsure" if len(unsure) else "free")
+    assert kinds == {"free", "unsure", "contact"}
