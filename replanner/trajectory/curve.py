@@ -177,19 +177,15 @@ def _deviation_factors(d_in: np.ndarray, d_out: np.ndarray) -> np.ndarray:
     ell = np.linalg.norm(B - A, axis=1)[:, None]
     z = np.zeros_like(A)
     pts = _U65 @ quintic_coefficients(A, ell * d_in, z, B, ell * d_out, z)  # (k, 65, dof)
-    dots = np.maximum(np.einsum("kd,kd->k", d_in, d_in), EPS)[:, None, None]
-    t = np.clip(np.einsum("knd,kd->kn", pts - A[:, None], d_in)[..., None] / dots, 0.0, 1.0)
-    first = np.linalg.norm(pts - (A[:, None] + t * d_in[:, None]), axis=2)  # to the segment A -> corner (0)
-    dots = np.maximum(np.einsum("kd,kd->k", B, B), EPS)[:, None, None]
-    t = np.clip(np.einsum("knd,kd->kn", pts, B)[..., None] / dots, 0.0, 1.0)
-    second = np.linalg.norm(pts - t * B[:, None], axis=2)  # to the segment corner -> B
-    return np.minimum(first, second).max(axis=1)
+    corner = np.zeros_like(A[:, None])
+    return np.minimum(_dist_to_segment(pts, A[:, None], corner), _dist_to_segment(pts, corner, B[:, None])).max(axis=1)
 
 
 def _dist_to_segment(P: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance (...) of points P (..., dof) to the segments a -> b (broadcast against P)."""
     ab = b - a
-    t = np.clip(((P - a) @ ab) / max(ab @ ab, EPS), 0.0, 1.0)
-    return np.linalg.norm(P - (a + t[:, None] * ab), axis=1)
+    t = np.clip(np.sum((P - a) * ab, axis=-1) / np.maximum(np.sum(ab * ab, axis=-1), EPS), 0.0, 1.0)
+    return np.linalg.norm(P - (a + t[..., None] * ab), axis=-1)
 
 
 def distance_to_polyline(P: np.ndarray, W: np.ndarray) -> np.ndarray:

@@ -15,7 +15,8 @@ from .sphere_layer import (
     SphereScene,
     _distance,
     _place,
-    _voxels_in,
+    ball_in_map,
+    pair_grow,
     spheres_meet_body,
     spheres_meet_map,
     spheres_meet_primitive,
@@ -124,8 +125,7 @@ def _decide_all(
             if verdict == -1:
                 break
             if verdict == APART and octree_mask[b]:  # the map's voxels: the spheres' test, else FCL's
-                g = ball_r[b] + map_pad * gf[b]
-                if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
+                if ball_in_map(sat, key_min, inv_res, x, y, z, ball_r[b] + map_pad * gf[b]):
                     if not placed[b]:
                         _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
                         placed[b] = True
@@ -134,10 +134,8 @@ def _decide_all(
         if verdict != -1:
             for p in range(pair_a.shape[0]):
                 a, b = pair_a[p], pair_b[p]
-                d0, d1, d2 = BC[a, 0] - BC[b, 0], BC[a, 1] - BC[b, 1], BC[a, 2] - BC[b, 2]
-                sg = self_pad * (gf[a] + gf[b])
-                reach = ball_r[a] + ball_r[b] + sg
-                if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach:
+                sg = pair_grow(BC, ball_r, gf, self_pad, a, b)
+                if sg < 0.0:
                     continue
                 for bo in (a, b):
                     if not placed[bo]:

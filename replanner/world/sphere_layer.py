@@ -260,12 +260,26 @@ def spheres_meet_body(C, rad, a0, a1, b0, b1, BC, bb, ball_r, grow) -> bool:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def ball_in_map(sat, key_min, inv_res, x, y, z, g) -> bool:
+    """Whether a voxel of the map may meet the ball at (x, y, z) of radius g (its bounding cube meets one)."""
+    return _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def pair_grow(BC, ball_r, gf, self_pad, a, b) -> float:
+    """The padding [m] two bodies' spheres are grown by together, or -1 when their bounding balls (centres BC[a],
+    BC[b]) are apart even with it: the pair needs no sphere test."""
+    d0, d1, d2 = BC[a, 0] - BC[b, 0], BC[a, 1] - BC[b, 1], BC[a, 2] - BC[b, 2]
+    sg = self_pad * (gf[a] + gf[b])
+    reach = ball_r[a] + ball_r[b] + sg
+    return -1.0 if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach else sg
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def spheres_meet_map(C, rad, first, last, grow, sat, key_min, inv_res) -> bool:
     """Whether any placed sphere C[first:last] (radii grown by `grow`) may meet a voxel of the map."""
     for s in range(first, last):
-        g = rad[s] + grow
-        cx, cy, cz = C[s, 0], C[s, 1], C[s, 2]
-        if _voxels_in(sat, key_min, inv_res, cx - g, cy - g, cz - g, cx + g, cy + g, cz + g) > 0:
+        if ball_in_map(sat, key_min, inv_res, C[s, 0], C[s, 1], C[s, 2], rad[s] + grow):
             return True
     return False
 
@@ -341,8 +355,7 @@ def verdicts(
                 if verdict == -1:
                     break
             if verdict == 1 and octree_mask[b]:
-                g = ball_r[b] + mg
-                if _voxels_in(sat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0:
+                if ball_in_map(sat, key_min, inv_res, x, y, z, ball_r[b] + mg):
                     if not placed[b]:
                         _place(frames, 0, ball_slot[b], local, first[b], first[b + 1], C)
                         _place(frames, 0, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
@@ -352,11 +365,9 @@ def verdicts(
         if verdict != -1:
             for p in range(pair_a.shape[0]):
                 ba, bb = pair_a[p], pair_b[p]
-                d0, d1, d2 = BC[ba, 0] - BC[bb, 0], BC[ba, 1] - BC[bb, 1], BC[ba, 2] - BC[bb, 2]
-                sg = self_pad * (gf[ba] + gf[bb])
-                reach = ball_r[ba] + ball_r[bb] + sg
-                if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach:
-                    continue  # the two bodies' balls are apart
+                sg = pair_grow(BC, ball_r, gf, self_pad, ba, bb)
+                if sg < 0.0:
+                    continue
                 for bo in (ba, bb):
                     if not placed[bo]:
                         _place(frames, 0, ball_slot[bo], local, first[bo], first[bo + 1], C)
