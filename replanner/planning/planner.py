@@ -347,10 +347,17 @@ class Planner:
         q_goal = self.resolve_goal(start, goal)
         t_end = t_begin + deadline * (1.0 - FINAL_CHECKS_SHARE)
         t_stop = t_begin + deadline * (1.0 + FINAL_CHECKS_SHARE)  # the promise: back by then, or failed
-        if self.checker.path_valid(np.array([start, q_goal])):
-            self._confirm(np.array([start, q_goal]), t_stop, t_begin, deadline)
+
+        def exact(W: np.ndarray) -> bool:
+            return self._exact_clear(W, t_stop, t_begin, deadline)
+
+        # the search's resolution is the configured checker's, coarsened: a small padding only tightens the final check
+        fine = self.checker.path_resolution
+        self._search_resolution = self.search_coarseness * self.paddings.checker.path_resolution
+        direct = np.array([start, q_goal])
+        if self._motion_ok(start, q_goal, self._search_resolution) and exact(direct):
             t = clock() - t_begin
-            return PlanResult(np.array([start, q_goal]), q_goal, name, 0, 0.0, 0.0, t, direct=True, raw_waypoints=2)
+            return PlanResult(direct, q_goal, name, 0, 0.0, 0.0, t, direct=True, raw_waypoints=2)
         t_searching = clock()
         ss = og.SimpleSetup(self.si)
         ss.setStartAndGoalStates(self._alloc(start), self._alloc(q_goal))
@@ -358,9 +365,6 @@ class Planner:
         other = planner_class(self.retry_planner) if planner is None and self.retry_planner else cls
         attempts, used = 0, None
         pdef = ss.getProblemDefinition()
-        # the search's resolution is the configured checker's, coarsened: a small padding only tightens the final check
-        fine = self.checker.path_resolution
-        self._search_resolution = self.search_coarseness * self.paddings.checker.path_resolution
         W = raw_path = None
         simplify_time = 0.0
         while W is None:
@@ -387,7 +391,7 @@ class Planner:
             if bool(status) and pdef.hasExactSolution():
                 raw_path = self._solution(ss)
                 t_simp = clock()
-                W = self.simplify(raw_path, self._search_resolution, t_end)
+                W = self.simplify(raw_path, self._search_resolution, t_end, exact)
                 simplify_time += clock() - t_simp
                 if W is None:  # a thin obstacle slipped between the coarse search checks: search finer
                     self._search_resolution = max(fine, self._search_resolution / self.search_coarseness)
@@ -401,30 +405,32 @@ class Planner:
                 f"{name} found no path in {deadline:.3f} s ({attempts} attempts); give a longer deadline, "
                 "another planner, or check that the goal is reachable"
             )
-        t_confirm = clock()
-        self._confirm(W, t_stop, t_begin, deadline)
-        simplify_time += clock() - t_confirm
         total = clock() - t_begin
         name = next(k for k, v in PLANNERS.items() if v is used)
         return PlanResult(W, q_goal, name, attempts, search_time, simplify_time, total, raw_waypoints=len(raw_path))
 
-    def simplify(self, raw: np.ndarray, resolution: float, t_end: float = math.inf) -> np.ndarray | None:
+    def simplify(
+        self, raw: np.ndarray, resolution: float, t_end: float = math.inf, exact: Callable | None = None
+    ) -> np.ndarray | None:
         """A found path shortcut with motions checked every `resolution` [m] (the search's), then checked at the full
-        path resolution; if a shortcut slipped through a thin obstacle, shortcut at the full resolution. None: `raw`
-        itself slipped through one."""
+        path resolution by `exact` (a path -> bool; None: the checker's `path_valid`); if a shortcut slipped through a
+        thin obstacle, shortcut at the full resolution. None: `raw` itself slipped through one."""
+        exact = exact or self.checker.path_valid
         W = self.shortcut(raw, t_end, resolution)
-        if self.checker.path_valid(W):
+        if exact(W):
             return W
         if not self.checker.path_valid(raw):
             return None
-        return self.shortcut(raw, t_end)
+        W = self.shortcut(raw, t_end)
+        if not exact(W):  # every segment was cleared at the full resolution: the layers disagree with FCL
+            log.error("the sphere layer cleared a path FCL refuses: a bug, please report it with the scene")
+            raise NoSolution("the path found collides by FCL's check (sphere layer disagreement): plan again")
+        return W
 
-    def _confirm(self, W: np.ndarray, t_stop: float, t_begin: float, deadline: float) -> None:
-        """FCL's own check of the path a plan returns, at path resolution (the sphere layer only ever clears), a
-        chunk at a time: past `t_stop` the plan fails rather than return late."""
-        if not isinstance(self.checker, FastChecker):
-            return
-        exact = self.checker.checker
+    def _exact_clear(self, W: np.ndarray, t_stop: float, t_begin: float, deadline: float) -> bool:
+        """FCL's own check of a path at path resolution (the last word on every path a plan returns; the layers in
+        front of it only ever clear), a chunk at a time: past `t_stop` the plan fails rather than return late."""
+        exact = self.checker.checker if isinstance(self.checker, FastChecker) else self.checker
         Q, _ = exact.interpolate(W)
         for i in range(0, len(Q), CONFIRM_CHUNK):
             if self.clock() > t_stop:
@@ -434,8 +440,8 @@ class Planner:
                     "deadline"
                 )
             if not exact.is_valid_batch(Q[i : i + CONFIRM_CHUNK]).all():
-                log.error("the sphere layer cleared a path FCL refuses: a bug, please report it with the scene")
-                raise NoSolution("the path found collides by FCL's check (sphere layer disagreement): plan again")
+                return False
+        return True
 
     def _solution(self, ss) -> np.ndarray:
         path = ss.getSolutionPath()

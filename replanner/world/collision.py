@@ -22,13 +22,15 @@ import fcl
 import numpy as np
 
 from ..errors import InvalidInputError
+from .broadphase import broadphase
 from .collision_scene import OCTREE, CollisionScene, ThreadObjects
 from .geometry import Shape
-from .kernels import body_boxes, boxes_meet, pairs_meet
+from .kernels import body_boxes, kernel_array
 from .robot import RobotModel
 from .scene import World, WorldSnapshot
 
 log = logging.getLogger(__name__)
+_NO_MAP = (np.zeros(3), 1.0, np.zeros(3, np.int64), np.zeros(1, np.int32))  # a one-cell table: no map
 
 
 class ContactKind(str, Enum):
@@ -154,6 +156,7 @@ class CollisionChecker:
         self._request = fcl.CollisionRequest()
         self._contact_request = fcl.CollisionRequest(num_max_contacts=1, enable_contact=True)
         self._dist_request = fcl.DistanceRequest(enable_nearest_points=True, enable_signed_distance=True)
+        self.is_valid(robot.home)  # compile the broadphase now, not in the first check of a running motion
 
     @classmethod
     def from_config(cls, robot: RobotModel, world: World, cfg) -> CollisionChecker:
@@ -219,38 +222,6 @@ class CollisionChecker:
         hi = np.empty_like(lo)
         body_boxes(np.ascontiguousarray(T), c, h, lo, hi)
         return lo, hi
-
-    def _candidates(
-        self, snap, scene: CollisionScene, Q: np.ndarray, T: np.ndarray, octree_only: bool = False, robot_pairs=True
-    ):
-        """Boolean masks of pairs the narrowphase must test: octree (N, B), objects (N, B, O), self (N, P).
-
-        robot_pairs: False leaves out the robot's own link pairs (attachments against links stay in)."""
-        lo, hi = self._aabbs(T, scene.box_c, scene.box_h)
-        elo = lo[:, 0]
-        occ = snap.occupancy
-        if occ is not None and len(occ):
-            cand_oct = occ.any_in_boxes(lo[:, 2], hi[:, 2]) & scene.octree_mask
-        else:
-            cand_oct = np.zeros(elo.shape[:2], dtype=bool)
-        if octree_only:
-            return cand_oct, np.zeros(elo.shape[:2] + (0,), dtype=bool), np.zeros((len(T), 0), dtype=bool)
-        if len(scene.obstacles):
-            cand_obj = np.empty(elo.shape[:2] + (len(scene.obstacles),), dtype=bool)
-            boxes_meet(T, scene.box_c[0], scene.box_h[0], lo, hi, scene.env_mask, scene.obs_lo, scene.obs_hi,
-                       scene.obs_R, scene.obs_c, scene.obs_h, cand_obj)  # fmt: skip
-        else:
-            cand_obj = np.zeros(elo.shape[:2] + (0,), dtype=bool)
-        cand_self = np.zeros((len(T), len(scene.pair_a)), dtype=bool)
-        if len(scene.table_cols) and robot_pairs:
-            cand_self[:, scene.table_cols] = scene.tables.may_collide(Q)
-        k = 0 if robot_pairs else scene.first_attached_box  # box columns of attachments come last
-        if len(scene.box_cols) > k:
-            # oriented boxes part most pairs whose world-aligned ones meet (a turned hand): no FCL call for those
-            meet = np.empty((len(T), len(scene.box_cols) - k), dtype=bool)
-            pairs_meet(T, scene.box_c[1], scene.box_h[1], lo, hi, scene.box_a[k:], scene.box_b[k:], meet)
-            cand_self[:, scene.box_cols[k:]] = meet
-        return cand_oct, cand_obj, cand_self
 
     # ------------------------------------------------------------------ narrowphase
     def _narrow(self, scene, objs, octree, T_n, tests, locate: bool = False) -> Contact | None:
@@ -321,18 +292,20 @@ class CollisionChecker:
         if self.check_limits:
             lim = self.robot.limits
             valid &= ((Q >= lim.lower - 1e-9) & (Q <= lim.upper + 1e-9)).all(axis=1)
-        T = self._body_poses(scene, Q)
-        cand_oct, cand_obj, cand_self = self._candidates(snap, scene, Q, T, octree_only, robot_pairs)
+        T = np.empty((N, len(scene.bodies), 4, 4))
+        occ = snap.occupancy
+        table = occ.broadphase_table() if occ is not None and len(occ) else _NO_MAP
+        k0 = len(scene.pair_a) if octree_only else 0 if robot_pairs else scene.n_robot_pairs
+        found, m = broadphase(
+            kernel_array(Q), *self.robot.chain, scene.body_slot, scene.body_off, scene.box_c, scene.box_h,
+            scene.octree_mask, *table, not octree_only, scene.env_mask, scene.obs_lo, scene.obs_hi, scene.obs_R,
+            scene.obs_c, scene.obs_h, scene.pair_a, scene.pair_b, scene.pair_tab, k0, scene.tables.packed_i,
+            scene.tables.packed_f, scene.tables.lookup, T, np.empty((max(64, N), 4), np.int64),
+        )  # fmt: skip
         # the narrowphase work per configuration, as plain lists: no numpy call per pair
         tests: dict[int, list] = {}
-        for n, b in np.argwhere(cand_oct).tolist():
-            tests.setdefault(n, []).append((0, b, 0))
-        for n, b, o in np.argwhere(cand_obj).tolist():
-            tests.setdefault(n, []).append((1, b, o))
-        if cand_self.shape[1]:
-            pa, pb = scene.pair_a_list, scene.pair_b_list
-            for n, k in np.argwhere(cand_self).tolist():
-                tests.setdefault(n, []).append((2, pa[k], pb[k]))
+        for n, kind, a, b in found[:m].tolist():
+            tests.setdefault(n, []).append((kind, a, b))
         bad_limits = np.flatnonzero(~valid).tolist()
         for n in sorted(set(tests).union(bad_limits)):
             if not valid[n]:

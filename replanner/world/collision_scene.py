@@ -182,6 +182,8 @@ class CollisionScene:
         self.box_cols = np.flatnonzero(box)
         self.box_a, self.box_b = self.pair_a[self.box_cols], self.pair_b[self.box_cols]
         self.first_attached_box = int(np.searchsorted(self.box_cols, self.n_robot_pairs))
+        self.pair_tab = np.full(len(P), -1, dtype=np.int64)  # pair -> its clearance table's index (-1: its boxes)
+        self.pair_tab[self.table_cols] = np.arange(len(self.table_cols))
 
         # per-joint reach of the farthest body point, for path interpolation
         reach = np.zeros(robot.dof)

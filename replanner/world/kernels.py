@@ -80,59 +80,14 @@ def body_boxes(T, center, half, lo, hi):
                     hi[n, k, b, r] = m + e
 
 
-@numba.njit(cache=True, nogil=True)
-def boxes_meet(T, center, half, lo, hi, mask, obs_lo, obs_hi, obs_R, obs_c, obs_h, cand):
-    """cand[n, b, o]: body b's box (local centre center[b], half extents half[b] at pose T[n, b]; world-aligned
-    bounds lo[n, 0, b], hi[n, 0, b] of body_boxes) may meet obstacle o's box (world-aligned obs_lo, obs_hi;
-    rotation obs_R[o], centre obs_c[o], half extents obs_h[o]) and mask[b, o] asks. The world-aligned boxes
-    first, then the separating axis test of the two oriented boxes (`_boxes_apart`)."""
-    R, A = np.empty((3, 3)), np.empty((3, 3))
-    t, w = np.empty(3), np.empty(3)
-    for n in range(cand.shape[0]):
-        for b in range(cand.shape[1]):
-            Tb = T[n, b]
-            _box_centre(Tb, center[b], w)
-            for o in range(cand.shape[2]):
-                cand[n, b, o] = mask[b, o]
-                for i in range(3):
-                    if lo[n, 0, b, i] > obs_hi[o, i] or hi[n, 0, b, i] < obs_lo[o, i]:
-                        cand[n, b, o] = False
-                if cand[n, b, o] and _boxes_apart(Tb, w, half[b], obs_R[o], obs_c[o], obs_h[o], R, A, t):
-                    cand[n, b, o] = False
-    return cand
-
-
-@numba.njit(cache=True, nogil=True)
-def pairs_meet(T, center, half, lo, hi, pa, pb, cand):
-    """cand[n, k]: the boxes of bodies pa[k] and pb[k] (local centres center[b], half extents half[b], at poses
-    T[n, b]; world-aligned bounds lo[n, 1, b], hi[n, 1, b] of body_boxes) may meet: the world-aligned boxes first,
-    then the separating axis test of the two oriented boxes (`_boxes_apart`)."""
-    R, A = np.empty((3, 3)), np.empty((3, 3))
-    t, wa, wb = np.empty(3), np.empty(3), np.empty(3)
-    for n in range(cand.shape[0]):
-        for k in range(cand.shape[1]):
-            a, b = pa[k], pb[k]
-            cand[n, k] = True
-            for i in range(3):
-                if lo[n, 1, a, i] > hi[n, 1, b, i] or hi[n, 1, a, i] < lo[n, 1, b, i]:
-                    cand[n, k] = False
-            if not cand[n, k]:
-                continue
-            _box_centre(T[n, a], center[a], wa)
-            _box_centre(T[n, b], center[b], wb)
-            if _boxes_apart(T[n, a], wa, half[a], T[n, b, :3, :3], wb, half[b], R, A, t):
-                cand[n, k] = False
-    return cand
-
-
 @numba.njit(cache=True, nogil=True, inline="always")
-def _box_centre(Tb, c, w):
+def box_centre(Tb, c, w):
     for i in range(3):
         w[i] = Tb[i, 3] + Tb[i, 0] * c[0] + Tb[i, 1] * c[1] + Tb[i, 2] * c[2]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _boxes_apart(Ta, wa, e, Ro, wo, f, R, A, t):
+def boxes_apart(Ta, wa, e, Ro, wo, f, R, A, t):
     """True if a separating axis parts box a (rotation Ta[:3, :3], centre wa, half extents e) from box o (rotation
     Ro, centre wo, half extents f): the 15 axes of Ericson, Real-Time Collision Detection 4.4.1, 1e-9 m in the
     boxes' favour. R, A, t: scratch."""
@@ -163,31 +118,37 @@ def _boxes_apart(Ta, wa, e, Ro, wo, f, R, A, t):
 def boxes_hit_table(lo, hi, origin, inv_cell, n, sat, out):
     """out[i] = the summed-volume table `sat` ((n + 1) cells a side, flat) counts an occupied voxel in a cell
     that box [lo[i], hi[i]] (M, 3) overlaps; `origin` is the table's corner, cells 1 / inv_cell a side."""
-    s1, s2 = n[2] + 1, (n[1] + 1) * (n[2] + 1)
     for i in range(lo.shape[0]):
-        # cells [a, b] overlap the box; in table coordinates that is the half-open range [a, b + 1)
-        a0, a1, a2 = (
-            _cell(lo[i, 0], origin[0], inv_cell, 0.0, n[0]),
-            _cell(lo[i, 1], origin[1], inv_cell, 0.0, n[1]),
-            _cell(lo[i, 2], origin[2], inv_cell, 0.0, n[2]),
-        )
-        b0, b1, b2 = (
-            _cell(hi[i, 0], origin[0], inv_cell, 1.0, n[0]),
-            _cell(hi[i, 1], origin[1], inv_cell, 1.0, n[1]),
-            _cell(hi[i, 2], origin[2], inv_cell, 1.0, n[2]),
-        )
-        count = (
-            sat[b0 * s2 + b1 * s1 + b2]
-            - sat[a0 * s2 + b1 * s1 + b2]
-            - sat[b0 * s2 + a1 * s1 + b2]
-            - sat[b0 * s2 + b1 * s1 + a2]
-            + sat[a0 * s2 + a1 * s1 + b2]
-            + sat[a0 * s2 + b1 * s1 + a2]
-            + sat[b0 * s2 + a1 * s1 + a2]
-            - sat[a0 * s2 + a1 * s1 + a2]
-        )
-        out[i] = count > 0
+        out[i] = box_hits_table(lo[i, 0], lo[i, 1], lo[i, 2], hi[i, 0], hi[i, 1], hi[i, 2], origin, inv_cell, n, sat)
     return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def box_hits_table(lo0, lo1, lo2, hi0, hi1, hi2, origin, inv_cell, n, sat) -> bool:
+    """Whether `boxes_hit_table`'s table counts an occupied voxel in a cell the box [lo, hi] overlaps."""
+    s1, s2 = n[2] + 1, (n[1] + 1) * (n[2] + 1)
+    # cells [a, b] overlap the box; in table coordinates that is the half-open range [a, b + 1)
+    a0, a1, a2 = (
+        _cell(lo0, origin[0], inv_cell, 0.0, n[0]),
+        _cell(lo1, origin[1], inv_cell, 0.0, n[1]),
+        _cell(lo2, origin[2], inv_cell, 0.0, n[2]),
+    )
+    b0, b1, b2 = (
+        _cell(hi0, origin[0], inv_cell, 1.0, n[0]),
+        _cell(hi1, origin[1], inv_cell, 1.0, n[1]),
+        _cell(hi2, origin[2], inv_cell, 1.0, n[2]),
+    )
+    count = (
+        sat[b0 * s2 + b1 * s1 + b2]
+        - sat[a0 * s2 + b1 * s1 + b2]
+        - sat[b0 * s2 + a1 * s1 + b2]
+        - sat[b0 * s2 + b1 * s1 + a2]
+        + sat[a0 * s2 + a1 * s1 + b2]
+        + sat[a0 * s2 + b1 * s1 + a2]
+        + sat[b0 * s2 + a1 * s1 + a2]
+        - sat[a0 * s2 + a1 * s1 + a2]
+    )
+    return count > 0
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -214,11 +175,6 @@ def warm_up() -> None:
     body_poses(frames, np.zeros(1, np.int64), np.eye(4)[None].copy(), np.empty((1, 1, 4, 4)))
     box = np.zeros((1, 1, 3))
     body_boxes(eye, box, box, np.empty((1, 1, 1, 3)), np.empty((1, 1, 1, 3)))
-    flat, bounds = np.zeros((1, 3)), np.zeros((1, 1, 1, 3))
-    boxes_meet(eye, flat, flat, bounds, bounds, np.ones((1, 1), bool), flat, flat, np.eye(3)[None].copy(), flat, flat,
-               np.ones((1, 1, 1), bool))  # fmt: skip
-    pairs = np.zeros((1, 2, 1, 3))
-    pairs_meet(eye, flat, flat, pairs, pairs, np.zeros(1, np.int64), np.zeros(1, np.int64), np.ones((1, 1), bool))
     boxes_hit_table(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(3), 1.0, np.ones(3, np.int64),
                     np.zeros(8, np.int32), np.empty(1, bool))  # fmt: skip
     octree_stream(np.zeros(1, np.uint64), 16)  # the first map's octree and broadphase grid

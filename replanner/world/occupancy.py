@@ -172,8 +172,8 @@ class OccupancyMap:
         grid = count_cells(self.keys, key_min, ratio, shape)
         sat = np.zeros(tuple(shape + 1), dtype=np.int32)  # summed-volume table with a zero slab in front
         sat[1:, 1:, 1:] = grid.cumsum(0).cumsum(1).cumsum(2)
-        self._origin = key_min * self.resolution  # the lower corner of the first voxel: boxes fall inside a cell
-        self._n = shape
+        self._origin = (key_min * self.resolution).astype(np.float64)  # boxes fall inside the first voxel's cell
+        self._n = shape.astype(np.int64)
         self._sat = sat.ravel()
         self._inv_cell = 1.0 / (ratio * self.resolution)
 
@@ -184,22 +184,22 @@ class OccupancyMap:
         """
         if not len(self.keys):
             return np.zeros(np.shape(lo)[:-1], dtype=bool)
-        if not self._broadphase_ready:  # two racing builds write equal tables
-            self._build_broadphase()
-            self._broadphase_ready = True
         lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
         shape = lo.shape[:-1]
         out = np.empty(int(np.prod(shape)), dtype=bool)
         boxes_hit_table(
-            np.ascontiguousarray(lo.reshape(-1, 3)),
-            np.ascontiguousarray(hi.reshape(-1, 3)),
-            self._origin,
-            self._inv_cell,
-            self._n,
-            self._sat,
+            np.ascontiguousarray(lo.reshape(-1, 3)), np.ascontiguousarray(hi.reshape(-1, 3)), *self.broadphase_table(),
             out,
-        )
+        )  # fmt: skip
         return out.reshape(shape)
+
+    def broadphase_table(self) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+        """What `kernels.boxes_hit_table` looks voxels up in: the table's corner [m], 1 / its cell size [1/m], its
+        cells per axis and its flat summed-volume counts (built on the first look; a map needs voxels)."""
+        if not self._broadphase_ready:  # two racing builds write equal tables
+            self._build_broadphase()
+            self._broadphase_ready = True
+        return self._origin, self._inv_cell, self._n, self._sat
 
     def __repr__(self) -> str:
         return f"OccupancyMap(voxels={len(self)}, resolution={self.resolution})"

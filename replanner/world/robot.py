@@ -346,12 +346,17 @@ class RobotModel:
         return a
 
     # ------------------------------------------------------------------ kinematics
+    @property
+    def chain(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The joint chain as compiled kernels take it (see `kernels.chain_frames`): F, prismatic, joints, parents."""
+        return self._F, self._prismatic, self._joint_order, self._chain_parents
+
     def frames(self, Q: np.ndarray) -> np.ndarray:
         """Frames (N, 1 + dof, 4, 4) in the base frame for Q (N, dof): slot 0 is the base, slot 1 + j joint j's
         internal frame (z = its axis). Unchecked fast path; see `fk` for the checked public one."""
         Q = np.ascontiguousarray(Q, dtype=np.float64)
         out = np.empty((len(Q), self.dof + 1, 4, 4))
-        return chain_frames(Q, self._F, self._prismatic, self._joint_order, self._chain_parents, out)
+        return chain_frames(Q, *self.chain, out)
 
     def joint_frames(self, q) -> np.ndarray:
         """Internal active-joint frames (..., dof, 4, 4) in the base frame; z is each joint's axis."""

@@ -198,7 +198,7 @@ class SelfClearanceTables:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _pair_maybe(Q, n, p, packed_i, packed_f, table) -> bool:
+def pair_maybe(Q, n, p, packed_i, packed_f, table) -> bool:
     """Whether tabulated pair p may be in contact at Q[n]: its nearest grid point's clearance less Lipschitz slack."""
     j0, j1, n0, n1, off = packed_i[p, 0], packed_i[p, 1], packed_i[p, 2], packed_i[p, 3], packed_i[p, 4]
     u0 = (Q[n, j0] - packed_f[p, 0]) / packed_f[p, 2]
@@ -213,13 +213,13 @@ def _pair_maybe(Q, n, p, packed_i, packed_f, table) -> bool:
 def _may_collide_rows(Q, packed_i, packed_f, table, out):
     for n in range(Q.shape[0]):
         for p in range(packed_i.shape[0]):
-            out[n, p] = _pair_maybe(Q, n, p, packed_i, packed_f, table)
+            out[n, p] = pair_maybe(Q, n, p, packed_i, packed_f, table)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def may_collide_row(Q, n, packed_i, packed_f, table) -> bool:
     """True when any tabulated pair may be in contact at configuration Q[n]: `may_collide` for one row."""
     for p in range(packed_i.shape[0]):
-        if _pair_maybe(Q, n, p, packed_i, packed_f, table):
+        if pair_maybe(Q, n, p, packed_i, packed_f, table):
             return True
     return False

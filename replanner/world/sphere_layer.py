@@ -71,7 +71,7 @@ class SphereScene:
         self.radius = np.concatenate(rad)
         self.body = np.array(body, dtype=np.int64)
         self.padding = float(padding)
-        self.fk = (robot._F, robot._prismatic, robot._joint_order, robot._chain_parents)  # the chain, for `classify`
+        self.fk = robot.chain  # for `classify`
         self.env_pad, self.map_pad, self.self_pad = float(padding), float(map_padding), float(robot.self_body_padding)
         # how far a padding p takes each padded body beyond its shape, per p (geometry.padded)
         self.gf = np.array([_grow_factor(b.raw_shape, grow) for b in scene.bodies])

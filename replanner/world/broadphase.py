@@ -1,0 +1,107 @@
+"""The exact checker's broadphase in one compiled pass: per configuration, forward kinematics, the bodies' poses and
+boxes, and the pairs whose boxes meet (what FCL must test), in the order FCL tests them. One pass instead of a
+kernel per step with Python between them: a path's worth of configurations costs microseconds each."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .kernels import box_centre, box_hits_table, boxes_apart, frames_of
+from .selfcollision import pair_maybe
+
+MAP, OBJECT, SELF = 0, 1, 2  # what a test's second part is: the occupancy map, a static object, another body
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _push(tests, m, n, kind, a, b):
+    if m == tests.shape[0]:
+        grown = np.empty((2 * m + 64, 4), np.int64)
+        grown[:m] = tests[:m]
+        tests = grown
+    tests[m, 0], tests[m, 1], tests[m, 2], tests[m, 3] = n, kind, a, b
+    return tests, m + 1
+
+
+@numba.njit(cache=True, nogil=True)
+def broadphase(
+    Q, F, prismatic, joints, parents, slot, off, box_c, box_h, octree_mask, origin, inv_cell, ncell, sat, objects,
+    env_mask, obs_lo, obs_hi, obs_R, obs_c, obs_h, pair_a, pair_b, pair_tab, k0, tab_i, tab_f, table, T, tests,
+):  # fmt: skip
+    """T[n] = the body poses (B, 4, 4) of configuration Q[n] (body b: frame slot[b] times off[b]); returns `tests`
+    (grown when full) and the count of its rows (n, kind, a, b) filled, the pairs whose boxes meet, per
+    configuration in this order:
+
+    - MAP: body a's map box (box_c[2], box_h[2]) overlaps a cell of the map's summed-volume table `sat` (a table of
+      one cell: no map) and octree_mask[a];
+    - OBJECT (when `objects`): body a's world box (box_c[0], box_h[0]) meets obstacle b's, world-aligned (obs_lo,
+      obs_hi) and oriented (obs_R, obs_c, obs_h), and env_mask[a, b];
+    - SELF: pairs k >= k0 (pair_a[k], pair_b[k]): pair_tab[k] >= 0 asks its clearance table (tab_i, tab_f, table),
+      the others their self boxes (box_c[1], box_h[1]), world-aligned, then oriented.
+    """
+    N, B, O, dof = Q.shape[0], slot.shape[0], obs_lo.shape[0], Q.shape[1]
+    frames = np.empty((1, dof + 1, 4, 4))
+    lo, hi = np.empty((3, B, 3)), np.empty((3, B, 3))
+    R, A = np.empty((3, 3)), np.empty((3, 3))
+    t, wa, wb = np.empty(3), np.empty(3), np.empty(3)
+    with_map = sat.shape[0] > 1
+    m = 0
+    for n in range(N):
+        frames_of(Q, n, F, prismatic, joints, parents, frames, 0)
+        for b in range(B):
+            s = slot[b]
+            for r in range(3):  # homogeneous: the last row is 0, 0, 0, 1
+                a0, a1, a2, a3 = frames[0, s, r, 0], frames[0, s, r, 1], frames[0, s, r, 2], frames[0, s, r, 3]
+                for c in range(4):
+                    T[n, b, r, c] = a0 * off[b, 0, c] + a1 * off[b, 1, c] + a2 * off[b, 2, c] + a3 * off[b, 3, c]
+            T[n, b, 3, 0] = T[n, b, 3, 1] = T[n, b, 3, 2] = 0.0
+            T[n, b, 3, 3] = 1.0
+            for k in range(3):
+                if (k == 0 and not objects) or (k == 2 and not with_map):
+                    continue
+                for r in range(3):
+                    mid = T[n, b, r, 3]
+                    e = 0.0
+                    for c in range(3):
+                        mid += T[n, b, r, c] * box_c[k, b, c]
+                        e += abs(T[n, b, r, c]) * box_h[k, b, c]
+                    lo[k, b, r] = mid - e
+                    hi[k, b, r] = mid + e
+        if with_map:
+            for b in range(B):
+                if octree_mask[b] and box_hits_table(
+                    lo[2, b, 0], lo[2, b, 1], lo[2, b, 2], hi[2, b, 0], hi[2, b, 1], hi[2, b, 2], origin, inv_cell,
+                    ncell, sat,
+                ):  # fmt: skip
+                    tests, m = _push(tests, m, n, MAP, b, 0)
+        if objects:
+            for b in range(B):
+                box_centre(T[n, b], box_c[0, b], wa)
+                for o in range(O):
+                    if not env_mask[b, o]:
+                        continue
+                    if (
+                        lo[0, b, 0] > obs_hi[o, 0] or hi[0, b, 0] < obs_lo[o, 0]
+                        or lo[0, b, 1] > obs_hi[o, 1] or hi[0, b, 1] < obs_lo[o, 1]
+                        or lo[0, b, 2] > obs_hi[o, 2] or hi[0, b, 2] < obs_lo[o, 2]
+                    ):  # fmt: skip
+                        continue
+                    if not boxes_apart(T[n, b], wa, box_h[0, b], obs_R[o], obs_c[o], obs_h[o], R, A, t):
+                        tests, m = _push(tests, m, n, OBJECT, b, o)
+        for k in range(k0, pair_a.shape[0]):
+            a, b = pair_a[k], pair_b[k]
+            if pair_tab[k] >= 0:
+                if pair_maybe(Q, n, pair_tab[k], tab_i, tab_f, table):
+                    tests, m = _push(tests, m, n, SELF, a, b)
+                continue
+            if (
+                lo[1, a, 0] > hi[1, b, 0] or hi[1, a, 0] < lo[1, b, 0]
+                or lo[1, a, 1] > hi[1, b, 1] or hi[1, a, 1] < lo[1, b, 1]
+                or lo[1, a, 2] > hi[1, b, 2] or hi[1, a, 2] < lo[1, b, 2]
+            ):  # fmt: skip
+                continue
+            box_centre(T[n, a], box_c[1, a], wa)
+            box_centre(T[n, b], box_c[1, b], wb)
+            if not boxes_apart(T[n, a], wa, box_h[1, a], T[n, b, :3, :3], wb, box_h[1, b], R, A, t):
+                tests, m = _push(tests, m, n, SELF, a, b)
+    return tests, m
