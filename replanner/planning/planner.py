@@ -197,6 +197,7 @@ class Planner:
         self.search_coarseness = float(search_coarseness)
         self._search_resolution = self.search_coarseness * checker.path_resolution
         dof = self.robot.dof
+        self._joints = range(dof)
         self.space = ob.RealVectorStateSpace(dof)
         bounds = ob.RealVectorBounds(dof)
         for i in range(dof):
@@ -212,7 +213,9 @@ class Planner:
                 return False
             if p._attempt is not None:
                 p._attempt.count()
-            return p.checker.is_valid(p._to_np(s))
+            q, c = p._to_np(s), p.checker
+            # the layer's compiled call without a check's input checks (the planner's own states)
+            return c.motion_valid(q, q, 0.0) if isinstance(c, FastChecker) else c.is_valid(q)
 
         self.si.setStateValidityChecker(state_valid)
         self._mv = _BatchMotionValidator(self.si, self)
@@ -252,7 +255,7 @@ class Planner:
 
     # ------------------------------------------------------------------ conversions
     def _to_np(self, s) -> np.ndarray:
-        return np.array([s[i] for i in range(self.robot.dof)])
+        return np.fromiter(map(s.__getitem__, self._joints), np.float64, len(self._joints))
 
     def _alloc(self, q: np.ndarray):
         st = self.space.allocState()
