@@ -362,3 +362,26 @@ def test_the_sphere_layer_changes_no_verdict_so_a_seeded_plan_is_the_same_path(w
             planned += 1
     finally:
         world.remove("shelf")
+
+
+def test_fcl_checks_every_configuration_of_a_returned_path_at_path_resolution(wall_world, panda_cfg, monkeypatch):
+    """The last word is FCL's: the exact checker itself sees every configuration of a returned path's interpolation
+    at path resolution, for a searched path (its shortcuts were checked coarser) and for a direct one."""
+    world, _ = wall_world
+    exact = CollisionChecker.from_config(world.robot, world, panda_cfg.collision)
+    planner = Planner.from_config(exact, panda_cfg.planning, seed=5)
+    seen: list[np.ndarray] = []
+    real = exact.is_valid_batch
+
+    def recorded(Q):
+        seen.append(np.array(Q))
+        return real(Q)
+
+    monkeypatch.setattr(exact, "is_valid_batch", recorded)
+    for goal, direct in ((B, False), (A + 0.05, True)):
+        seen.clear()
+        res = planner.plan(A, goal, deadline=5.0)
+        assert res.direct == direct
+        Q, _ = exact.interpolate(res.path)
+        checked = {tuple(q) for q in np.concatenate(seen)}
+        assert len(Q) > 2 and all(tuple(q) in checked for q in Q)
