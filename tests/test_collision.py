@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from replanner.bench.scenes import add_table, clutter_map
+from replanner.world.broadphase import hull_apart
 from replanner.world.collision import OCTREE, CollisionChecker
-from replanner.world.geometry import Box, Cylinder, Sphere, padded_geometry, to_fcl
+from replanner.world.geometry import Box, Cylinder, Sphere, padded_geometry, padded_vertices, to_fcl
 from replanner.world.kernels import boxes_apart
 from replanner.world.scene import World
 from replanner.world.transforms import make_transform
@@ -216,6 +217,35 @@ def test_oriented_box_test_never_separates_boxes_fcl_finds_touching():
         apart_found += overlap and not meets[0, 0, 0]
     assert touching > 0.1 * n
     assert apart_found > 0.2 * (aligned_overlaps - touching)  # the test is not the world-aligned one again
+
+
+def test_the_hull_cull_never_parts_a_link_from_a_box_fcl_finds_touching(panda):
+    """The broadphase's last test before FCL (the support of the padded hull FCL is given, on an obstacle box's axes)
+    against FCL's own verdict on that hull and box, links at random poses around random boxes: it never parts a pair
+    FCL finds touching, and it parts most pairs whose oriented boxes meet but FCL finds apart."""
+    rng = np.random.default_rng(13)
+    n = 3000
+    scratch = (np.empty((3, 3)), np.empty((3, 3)), np.empty(3))
+    touching = parted = boxes_meet_only = 0
+    for i in range(n):
+        body = panda.bodies[rng.integers(len(panda.bodies))]
+        V = padded_vertices(body.shape, 0.01)
+        geom, (c, h) = padded_geometry(body.shape, 0.01)
+        T = make_transform(rng.uniform(-0.25, 0.25, 3), rng.normal(size=4))[None, None].copy()
+        Ro = make_transform((0, 0, 0), rng.normal(size=4))[:3, :3].copy()
+        half = rng.uniform(0.02, 0.3, 3)
+        hit = fcl.collide(fcl.CollisionObject(geom, fcl.Transform(T[0, 0, :3, :3], T[0, 0, :3, 3])),
+                          fcl.CollisionObject(fcl.Box(*(2 * half)), fcl.Transform(Ro, np.zeros(3))),
+                          fcl.CollisionRequest()) > 0  # fmt: skip
+        apart = hull_apart(T, 0, 0, V, 0, len(V), Ro[None], np.zeros((1, 3)), half[None], 0)
+        assert not (hit and apart), i
+        touching += hit
+        centre = T[0, 0, :3, :3] @ c + T[0, 0, :3, 3]
+        if not hit and not boxes_apart(T[0, 0], centre, h, Ro, np.zeros(3), half, *scratch):
+            boxes_meet_only += 1
+            parted += apart
+    assert touching > 0.2 * n and boxes_meet_only > 0.05 * n
+    assert parted > 0.3 * boxes_meet_only  # the hull is tighter than its box
 
 
 def test_oriented_pair_test_never_separates_body_boxes_fcl_finds_touching():

@@ -11,6 +11,30 @@ from .kernels import box_centre, box_hits_table, boxes_apart, frames_of
 from .selfcollision import pair_maybe
 
 MAP, OBJECT, SELF = 0, 1, 2  # what a test's second part is: the occupancy map, a static object, another body
+GAP = 1e-9  # [m] a hull parted from a box by less is left to FCL
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def hull_apart(T, n, b, V, v0, v1, obs_R, obs_c, obs_h, o) -> bool:
+    """Whether one of obstacle o's box axes parts it from body b's hull (vertices V[v0:v1] in its frame, at pose
+    T[n, b]): the hull's support along the axis, exact, against the box's half extent."""
+    for k in range(3):
+        # the axis in the body's frame, and the body origin's offset from the box centre along it
+        u0 = T[n, b, 0, 0] * obs_R[o, 0, k] + T[n, b, 1, 0] * obs_R[o, 1, k] + T[n, b, 2, 0] * obs_R[o, 2, k]
+        u1 = T[n, b, 0, 1] * obs_R[o, 0, k] + T[n, b, 1, 1] * obs_R[o, 1, k] + T[n, b, 2, 1] * obs_R[o, 2, k]
+        u2 = T[n, b, 0, 2] * obs_R[o, 0, k] + T[n, b, 1, 2] * obs_R[o, 1, k] + T[n, b, 2, 2] * obs_R[o, 2, k]
+        base = (
+            (T[n, b, 0, 3] - obs_c[o, 0]) * obs_R[o, 0, k]
+            + (T[n, b, 1, 3] - obs_c[o, 1]) * obs_R[o, 1, k]
+            + (T[n, b, 2, 3] - obs_c[o, 2]) * obs_R[o, 2, k]
+        )
+        lo, hi = np.inf, -np.inf
+        for i in range(v0, v1):
+            p = V[i, 0] * u0 + V[i, 1] * u1 + V[i, 2] * u2
+            lo, hi = min(lo, p), max(hi, p)
+        if base + lo > obs_h[o, k] + GAP or base + hi < -obs_h[o, k] - GAP:
+            return True
+    return False
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -26,7 +50,8 @@ def _push(tests, m, n, kind, a, b):
 @numba.njit(cache=True, nogil=True)
 def broadphase(
     Q, F, prismatic, joints, parents, slot, off, box_c, box_h, octree_mask, origin, inv_cell, ncell, sat, objects,
-    env_mask, obs_lo, obs_hi, obs_R, obs_c, obs_h, pair_a, pair_b, pair_tab, k0, tab_i, tab_f, table, T, tests,
+    env_mask, obs_lo, obs_hi, obs_R, obs_c, obs_h, hull_v, hull_first, pair_a, pair_b, pair_tab, k0, tab_i, tab_f,
+    table, T, tests,
 ):  # fmt: skip
     """T[n] = the body poses (B, 4, 4) of configuration Q[n] (body b: frame slot[b] times off[b]); returns `tests`
     (grown when full) and the count of its rows (n, kind, a, b) filled, the pairs whose boxes meet, per
@@ -35,7 +60,8 @@ def broadphase(
     - MAP: body a's map box (box_c[2], box_h[2]) overlaps a cell of the map's summed-volume table `sat` (a table of
       one cell: no map) and octree_mask[a];
     - OBJECT (when `objects`): body a's world box (box_c[0], box_h[0]) meets obstacle b's, world-aligned (obs_lo,
-      obs_hi) and oriented (obs_R, obs_c, obs_h), and env_mask[a, b];
+      obs_hi) and oriented (obs_R, obs_c, obs_h), the hull FCL is given for body a (hull_v[hull_first[a]:hull_first[a
+      + 1]], body frame; none: not asked) reaches the box on each of its axes, and env_mask[a, b];
     - SELF: pairs k >= k0 (pair_a[k], pair_b[k]): pair_tab[k] >= 0 asks its clearance table (tab_i, tab_f, table),
       the others their self boxes (box_c[1], box_h[1]), world-aligned, then oriented.
     """
@@ -86,8 +112,13 @@ def broadphase(
                         or lo[0, b, 2] > obs_hi[o, 2] or hi[0, b, 2] < obs_lo[o, 2]
                     ):  # fmt: skip
                         continue
-                    if not boxes_apart(T[n, b], wa, box_h[0, b], obs_R[o], obs_c[o], obs_h[o], R, A, t):
-                        tests, m = _push(tests, m, n, OBJECT, b, o)
+                    if boxes_apart(T[n, b], wa, box_h[0, b], obs_R[o], obs_c[o], obs_h[o], R, A, t):
+                        continue
+                    if hull_first[b + 1] > hull_first[b] and hull_apart(
+                        T, n, b, hull_v, hull_first[b], hull_first[b + 1], obs_R, obs_c, obs_h, o
+                    ):
+                        continue
+                    tests, m = _push(tests, m, n, OBJECT, b, o)
         for k in range(k0, pair_a.shape[0]):
             a, b = pair_a[k], pair_b[k]
             if pair_tab[k] >= 0:

@@ -299,8 +299,8 @@ class CollisionChecker:
         found, m = broadphase(
             kernel_array(Q), *self.robot.chain, scene.body_slot, scene.body_off, scene.box_c, scene.box_h,
             scene.octree_mask, *table, not octree_only, scene.env_mask, scene.obs_lo, scene.obs_hi, scene.obs_R,
-            scene.obs_c, scene.obs_h, scene.pair_a, scene.pair_b, scene.pair_tab, k0, scene.tables.packed_i,
-            scene.tables.packed_f, scene.tables.lookup, T, np.empty((max(64, N), 4), np.int64),
+            scene.obs_c, scene.obs_h, scene.hull_v, scene.hull_first, scene.pair_a, scene.pair_b, scene.pair_tab, k0,
+            scene.tables.packed_i, scene.tables.packed_f, scene.tables.lookup, T, np.empty((max(64, N), 4), np.int64),
         )  # fmt: skip
         # the narrowphase work per configuration, as plain lists: no numpy call per pair
         tests: dict[int, list] = {}

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import fcl
 import numpy as np
 
-from .geometry import Shape, bounding_radius, padded_geometry
+from .geometry import Shape, bounding_radius, padded_geometry, padded_vertices
 from .kernels import body_poses
 from .robot import RobotModel
 from .scene import WorldSnapshot
@@ -126,6 +126,10 @@ class CollisionScene:
         c = np.stack([np.stack([getattr(b, k)[0] for b in bodies]) for k in ("env_box", "self_box", "map_box")])
         h = np.stack([np.stack([getattr(b, k)[1] for b in bodies]) for k in ("env_box", "self_box", "map_box")])
         self.box_c, self.box_h = np.ascontiguousarray(c, dtype=np.float64), np.ascontiguousarray(h, dtype=np.float64)
+        # the hulls FCL is given against static objects (body frames): their support on an object's box axes
+        hulls = [padded_vertices(b.raw_shape, padding) for b in bodies]
+        self.hull_v = np.ascontiguousarray(np.concatenate(hulls), dtype=np.float64)
+        self.hull_first = np.concatenate([[0], np.cumsum([len(v) for v in hulls])]).astype(np.int64)
         # bounding balls of the unpadded bodies: centre (B, 4, 1) homogeneous in the body frame, radius (B,)
         self.ball_c = np.stack([np.append(b.raw_box[0], 1.0) for b in bodies])[..., None]
         self.ball_r = np.array([ball_radius(b.raw_shape, b.raw_box[0]) for b in bodies])

@@ -156,8 +156,19 @@ def to_fcl(shape: Shape) -> fcl.CollisionGeometry:
 @lru_cache(maxsize=4096)
 def padded_geometry(shape: Shape, padding: float) -> tuple[fcl.CollisionGeometry, tuple[np.ndarray, np.ndarray]]:
     """FCL geometry and local box (center, half extents) of `shape` padded by `padding` [m], memoised."""
-    p = padded(shape, padding)
+    p = _padded(shape, padding)
     return to_fcl(p), local_box(p)
+
+
+def padded_vertices(shape: Shape, padding: float) -> np.ndarray:
+    """Vertices (M, 3) of the hull FCL is given for `shape` padded by `padding` [m] (none for a primitive)."""
+    p = _padded(shape, padding)
+    return p.vertices if isinstance(p, ConvexHull) else np.zeros((0, 3))
+
+
+@lru_cache(maxsize=4096)
+def _padded(shape: Shape, padding: float) -> Shape:
+    return padded(shape, padding)
 
 
 def local_box(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
