@@ -177,7 +177,6 @@ class CollisionScene:
                     pairs.append((ri, ai))
         P = np.array(pairs, dtype=np.int64).reshape(-1, 2)
         self.pair_a, self.pair_b = P[:, 0], P[:, 1]
-        self.pair_a_list, self.pair_b_list = self.pair_a.tolist(), self.pair_b.tolist()
         # robot pairs come first, so table columns index this list directly
         self.tables = robot.self_clearance_tables()
         self.table_cols = self.tables.pair_index
@@ -185,7 +184,6 @@ class CollisionScene:
         box[self.table_cols] = False
         self.box_cols = np.flatnonzero(box)
         self.box_a, self.box_b = self.pair_a[self.box_cols], self.pair_b[self.box_cols]
-        self.first_attached_box = int(np.searchsorted(self.box_cols, self.n_robot_pairs))
         self.pair_tab = np.full(len(P), -1, dtype=np.int64)  # pair -> its clearance table's index (-1: its boxes)
         self.pair_tab[self.table_cols] = np.arange(len(self.table_cols))
 
