@@ -181,7 +181,6 @@ def build_monitor(
         allowed_contacts=allowed_contacts,
         check_limits=False,
     )
-    safety.is_valid(checker.robot.home)  # build lazily made geometry now: the first pending check must not stall
     speed = []
     if reaction_time is not None and cfg.speed_separation.enabled:
         age = joint_state_age or (lambda now: 0.0)

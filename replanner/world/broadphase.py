@@ -7,7 +7,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .kernels import box_centre, box_hits_table, boxes_apart, frames_of
+from .kernels import box_centre, box_hits_table, boxes_apart, frames_of, place_body, world_box
 from .selfcollision import pair_maybe
 
 MAP, OBJECT, SELF = 0, 1, 2  # what a test's second part is: the occupancy map, a static object, another body
@@ -67,7 +67,7 @@ def broadphase(
     """
     N, B, O, dof = Q.shape[0], slot.shape[0], obs_lo.shape[0], Q.shape[1]
     frames = np.empty((1, dof + 1, 4, 4))
-    lo, hi = np.empty((3, B, 3)), np.empty((3, B, 3))
+    lo, hi = np.empty((1, 3, B, 3)), np.empty((1, 3, B, 3))
     R, A = np.empty((3, 3)), np.empty((3, 3))
     t, wa, wb = np.empty(3), np.empty(3), np.empty(3)
     with_map = sat.shape[0] > 1
@@ -75,29 +75,16 @@ def broadphase(
     for n in range(N):
         frames_of(Q, n, F, prismatic, joints, parents, frames, 0)
         for b in range(B):
-            s = slot[b]
-            for r in range(3):  # homogeneous: the last row is 0, 0, 0, 1
-                a0, a1, a2, a3 = frames[0, s, r, 0], frames[0, s, r, 1], frames[0, s, r, 2], frames[0, s, r, 3]
-                for c in range(4):
-                    T[n, b, r, c] = a0 * off[b, 0, c] + a1 * off[b, 1, c] + a2 * off[b, 2, c] + a3 * off[b, 3, c]
-            T[n, b, 3, 0] = T[n, b, 3, 1] = T[n, b, 3, 2] = 0.0
-            T[n, b, 3, 3] = 1.0
+            place_body(frames, 0, slot[b], off, b, T, n)
             for k in range(3):
                 if (k == 0 and not objects) or (k == 2 and not with_map):
                     continue
-                for r in range(3):
-                    mid = T[n, b, r, 3]
-                    e = 0.0
-                    for c in range(3):
-                        mid += T[n, b, r, c] * box_c[k, b, c]
-                        e += abs(T[n, b, r, c]) * box_h[k, b, c]
-                    lo[k, b, r] = mid - e
-                    hi[k, b, r] = mid + e
+                world_box(T, n, b, box_c, box_h, k, lo, hi, 0)
         if with_map:
             for b in range(B):
                 if octree_mask[b] and box_hits_table(
-                    lo[2, b, 0], lo[2, b, 1], lo[2, b, 2], hi[2, b, 0], hi[2, b, 1], hi[2, b, 2], origin, inv_cell,
-                    ncell, sat,
+                    lo[0, 2, b, 0], lo[0, 2, b, 1], lo[0, 2, b, 2], hi[0, 2, b, 0], hi[0, 2, b, 1], hi[0, 2, b, 2],
+                    origin, inv_cell, ncell, sat,
                 ):  # fmt: skip
                     tests, m = _push(tests, m, n, MAP, b, 0)
         if objects:
@@ -107,9 +94,9 @@ def broadphase(
                     if not env_mask[b, o]:
                         continue
                     if (
-                        lo[0, b, 0] > obs_hi[o, 0] or hi[0, b, 0] < obs_lo[o, 0]
-                        or lo[0, b, 1] > obs_hi[o, 1] or hi[0, b, 1] < obs_lo[o, 1]
-                        or lo[0, b, 2] > obs_hi[o, 2] or hi[0, b, 2] < obs_lo[o, 2]
+                        lo[0, 0, b, 0] > obs_hi[o, 0] or hi[0, 0, b, 0] < obs_lo[o, 0]
+                        or lo[0, 0, b, 1] > obs_hi[o, 1] or hi[0, 0, b, 1] < obs_lo[o, 1]
+                        or lo[0, 0, b, 2] > obs_hi[o, 2] or hi[0, 0, b, 2] < obs_lo[o, 2]
                     ):  # fmt: skip
                         continue
                     if boxes_apart(T[n, b], wa, box_h[0, b], obs_R[o], obs_c[o], obs_h[o], R, A, t):
@@ -126,9 +113,9 @@ def broadphase(
                     tests, m = _push(tests, m, n, SELF, a, b)
                 continue
             if (
-                lo[1, a, 0] > hi[1, b, 0] or hi[1, a, 0] < lo[1, b, 0]
-                or lo[1, a, 1] > hi[1, b, 1] or hi[1, a, 1] < lo[1, b, 1]
-                or lo[1, a, 2] > hi[1, b, 2] or hi[1, a, 2] < lo[1, b, 2]
+                lo[0, 1, a, 0] > hi[0, 1, b, 0] or hi[0, 1, a, 0] < lo[0, 1, b, 0]
+                or lo[0, 1, a, 1] > hi[0, 1, b, 1] or hi[0, 1, a, 1] < lo[0, 1, b, 1]
+                or lo[0, 1, a, 2] > hi[0, 1, b, 2] or hi[0, 1, a, 2] < lo[0, 1, b, 2]
             ):  # fmt: skip
                 continue
             box_centre(T[n, a], box_c[1, a], wa)

@@ -156,7 +156,7 @@ class CollisionChecker:
         self._request = fcl.CollisionRequest()
         self._contact_request = fcl.CollisionRequest(num_max_contacts=1, enable_contact=True)
         self._dist_request = fcl.DistanceRequest(enable_nearest_points=True, enable_signed_distance=True)
-        self.is_valid(robot.home)  # compile the broadphase now, not in the first check of a running motion
+        self.is_valid(robot.home)  # compile the broadphase and build the scene now, not in the first check of a motion
 
     @classmethod
     def from_config(cls, robot: RobotModel, world: World, cfg) -> CollisionChecker:

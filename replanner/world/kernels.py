@@ -55,12 +55,19 @@ def body_poses(frames, slot, off, out):
     """out[n, b] = frames[n, slot[b]] @ off[b]: poses (N, B, 4, 4) of bodies fixed in the chain's frames."""
     for n in range(frames.shape[0]):
         for b in range(slot.shape[0]):
-            s = slot[b]
-            for r in range(4):
-                a0, a1, a2, a3 = frames[n, s, r, 0], frames[n, s, r, 1], frames[n, s, r, 2], frames[n, s, r, 3]
-                for c in range(4):
-                    out[n, b, r, c] = a0 * off[b, 0, c] + a1 * off[b, 1, c] + a2 * off[b, 2, c] + a3 * off[b, 3, c]
+            place_body(frames, n, slot[b], off, b, out, n)
     return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def place_body(frames, i, s, off, b, T, n):
+    """T[n, b] = frames[i, s] @ off[b] (homogeneous: the last row is 0, 0, 0, 1 and is not multiplied)."""
+    for r in range(3):
+        a0, a1, a2, a3 = frames[i, s, r, 0], frames[i, s, r, 1], frames[i, s, r, 2], frames[i, s, r, 3]
+        for c in range(4):
+            T[n, b, r, c] = a0 * off[b, 0, c] + a1 * off[b, 1, c] + a2 * off[b, 2, c] + a3 * off[b, 3, c]
+    T[n, b, 3, 0] = T[n, b, 3, 1] = T[n, b, 3, 2] = 0.0
+    T[n, b, 3, 3] = 1.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -70,14 +77,22 @@ def body_boxes(T, center, half, lo, hi):
     for n in range(T.shape[0]):
         for k in range(center.shape[0]):
             for b in range(center.shape[1]):
-                for r in range(3):
-                    m = T[n, b, r, 3]
-                    e = 0.0
-                    for c in range(3):
-                        m += T[n, b, r, c] * center[k, b, c]
-                        e += abs(T[n, b, r, c]) * half[k, b, c]
-                    lo[n, k, b, r] = m - e
-                    hi[n, k, b, r] = m + e
+                world_box(T, n, b, center, half, k, lo, hi, n)
+    return lo, hi
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def world_box(T, n, b, center, half, k, lo, hi, m):
+    """lo[m, k, b], hi[m, k, b] = the world-aligned box around body b's local box k (centre center[k, b], half
+    extents half[k, b]) at pose T[n, b]."""
+    for r in range(3):
+        mid = T[n, b, r, 3]
+        e = 0.0
+        for c in range(3):
+            mid += T[n, b, r, c] * center[k, b, c]
+            e += abs(T[n, b, r, c]) * half[k, b, c]
+        lo[m, k, b, r] = mid - e
+        hi[m, k, b, r] = mid + e
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
