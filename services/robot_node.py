@@ -37,7 +37,7 @@ class KinematicRobotNode:
             stall_after=cfg.controller.robot_stall_after,
         )
         self.rejected = 0
-        self.stops = 0  # stops of its own: the service was lost
+        self.stops = 0  # stops of its own: the service was lost, or its trajectory could not be followed
         self.watch: ServiceWatch | None = None
 
     def start(self) -> KinematicRobotNode:
@@ -74,10 +74,15 @@ class KinematicRobotNode:
             late = self.driver.timeline.receive(traj, start, self.driver.clock())
         except InvalidInputError as err:
             self.rejected += 1
-            log.warning("trajectory rejected: %s", err)
+            # the sender no longer wants the motion running: going on with it to its end would be following no one
+            stop = self.driver.timeline.stop_along(self.driver.clock(), self.robot.limits.acceleration)
+            log.warning("trajectory rejected: %s%s", err, "; braking along the path" if stop is not None else "")
+            self.stops += stop is not None
             return
         if late > 0.0:
-            log.warning("a trajectory from rest arrived %.0f ms after its start: started on arrival", late * 1e3)
+            log.warning(
+                "a trajectory runs %.0f ms after its stamp (the motion from rest it belongs to came late)", late * 1e3
+            )
 
 
 def run(cfg: ReplannerConfig, conf: zenoh.Config, q0=None) -> None:

@@ -232,3 +232,30 @@ def test_driver_that_falls_behind_does_not_burst(panda):
     gaps = np.diff([s.stamp for s in got[:30]])
     assert gaps[9] >= 0.1 - 1e-9  # the stall itself
     np.testing.assert_allclose(np.delete(gaps, 9), 0.005, atol=1e-9)  # then the rate again, no catch-up burst
+
+
+def test_a_brake_on_the_senders_account_joins_a_motion_the_robot_started_late(panda):
+    """The CI machine's case: a motion from rest reached the robot 29 ms after its stamp (started on arrival, too
+    little for the controller to see), and the controller's brake starts where its own account has the arm. The
+    robot runs it 29 ms late too, from where the arm is: continuous, not refused."""
+    gen = TrajectoryGenerator(panda)
+    now = [10.0]
+    robot, got = Timeline(panda.home), []
+    moves = Moves(panda.home, gen, lambda tr, t: got.append((tr, t)), lambda: now[0], 0.01, lambda *a, **k: None, 0.05)
+    start = moves.send_planned(gen.time(np.array([panda.home, panda.home + 0.6])))
+    assert robot.receive(got[-1][0], start, start + 0.029) == pytest.approx(0.029)
+    now[0] = start + 0.35
+    assert moves.resync(robot.state(now[0] - 0.005)[0], now[0]) is not None
+    assert moves.timeline.segments()[-1][0] == start  # 29 ms: below what the controller can tell from the arm
+    stop = moves.brake()
+    t_stop = got[-1][1]
+    assert np.abs(stop.state_at(0.0)[0] - robot.state(t_stop)[0]).max() > 0.02  # as stamped it would jump
+    assert robot.receive(stop, t_stop, now[0]) == pytest.approx(0.029)
+    t0 = t_stop + 0.029
+    q3 = [robot.state(t0 + k * 0.001)[0] for k in (-1, 0, 1)]
+    assert np.abs(q3[0] - 2 * q3[1] + q3[2]).max() < 1e-4  # no jump where the brake takes over
+    np.testing.assert_allclose(robot.state(t0 + 10.0)[0], stop.state_at(stop.duration)[0], atol=1e-9)
+    # a new motion from rest on time: the robot is no longer behind
+    q_end = stop.state_at(stop.duration)[0]
+    s2 = now[0] + 5.0
+    assert robot.receive(gen.time(np.array([q_end, panda.home])), s2, s2 - 0.05) == 0.0 and robot.lag == 0.0

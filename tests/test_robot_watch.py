@@ -10,10 +10,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 from replanner_services.procs import Proc, replanner_cmd
+from replanner_services.robot_node import KinematicRobotNode
 from replanner_services.soak import children as _children
 
 from replanner.apps.client import Client
-from replanner.config import parse_config
+from replanner.config import TransportConfig, parse_config
+from replanner.trajectory.generator import TrajectoryGenerator
+from replanner.transport import messages as m
+from replanner.transport.session import make_config, open_session
 from replanner.world.robot import RobotModel
 from tests.conftest import CONFIGS
 from tests.service_helpers import Stack, free_port, node_session
@@ -75,6 +79,44 @@ def test_sigkill_of_the_service_mid_motion_the_robot_brakes_along_its_path(tmp_p
             rec.close()
         session.close()
         stack.stop()
+
+
+def test_a_trajectory_the_robot_refuses_mid_motion_makes_it_brake_along_its_path(panda_cfg):
+    """A well-formed trajectory the robot cannot follow (it would jump) means the sender no longer wants the running
+    motion: the robot brakes along its path instead of running on to the old goal (real Zenoh sessions)."""
+    port = free_port()
+    listener = open_session(make_config(TransportConfig(endpoint=f"tcp/127.0.0.1:{port}"), "service"))
+    session = node_session(f"tcp/127.0.0.1:{port}")
+    node = KinematicRobotNode(panda_cfg, session).start()
+    robot, keys = node.robot, node.keys
+    rec = Recorder(listener, keys, robot.joint_names)
+    pub = listener.declare_publisher(keys.trajectory)
+    gen = TrajectoryGenerator(robot)
+
+    def send(traj, start):
+        t, q, qd, qdd = traj.sample(panda_cfg.transport.trajectory_dt)
+        pub.put(m.encode_trajectory(start, robot.joint_names, t, q, qd, qdd))
+
+    try:
+        _wait(lambda: rec.js, 10, "the robot's joint states")
+        goal = robot.home + np.r_[1.2, -0.4, 0.5, -0.6, 0.8, 0.6, 1.0]
+        send(gen.time(np.array([robot.home, goal]), velocity_scale=0.3), time.time() + 0.05)
+        _wait(lambda: np.abs(rec.latest()[2]).max() > 0.05, 10, "the arm at speed")
+        q_now = rec.latest()[1]
+        send(gen.time(np.array([q_now + 0.3, goal])), time.time() + 0.02)  # starts 0.3 rad off: would jump
+        _wait(lambda: node.rejected == 1 and np.abs(rec.latest()[2]).max() < 1e-9, 10, "the robot to stand")
+        assert node.stops == 1
+        q_end = rec.latest()[1]
+        assert np.abs(q_end - goal).max() > 0.1, "the robot ran on to the old goal"
+        Q = np.array([q for _, q, _ in rec.js])
+        direction = (goal - robot.home) / np.linalg.norm(goal - robot.home)
+        off = Q - robot.home - np.outer((Q - robot.home) @ direction, direction)
+        assert np.abs(off).max() < 1e-6  # every state on the straight path: it braked along it, no jump
+    finally:
+        rec.close()
+        node.stop()
+        session.close()
+        listener.close()
 
 
 def test_sigkill_of_the_service_mid_motion_the_sim_brakes_along_its_path(tmp_path):

@@ -37,6 +37,7 @@ class Timeline:
         self._rest = np.asarray(q0, dtype=float).copy()
         self._keep = keep
         self._lock = threading.Lock()
+        self.lag = 0.0  # [s] the last motion from rest started this late (the robot's side; see `receive`)
 
     def add(self, traj: Timed, start: float) -> None:
         """Run `traj` from `start` on; whatever was to start at or after `start` is dropped."""
@@ -46,22 +47,30 @@ class Timeline:
 
     def receive(self, traj: Timed, start: float, now: float, tolerance: float | None = JUMP_TOLERANCE) -> float:
         """The robot's side: run `traj` from `start`, or from `now` if it arrives late to a robot at rest and starts
-        at rest (as a driver starts a trajectory stamped in the past: a jump would be worse). Returns the delay [s].
+        at rest (as a driver starts a trajectory stamped in the past: a jump would be worse). A motion from rest
+        started late leaves the robot that far behind the sender's account, so a later trajectory that starts where
+        the robot will be that much later runs that much later (a brake or splice computed on the sender's account
+        joins the motion where it is, instead of being refused). Returns the delay [s] it runs with.
 
         Raises InvalidInputError for a trajectory that does not start where the robot is told to be then (by more
         than `tolerance` [rad]; None: not checked, e.g. a robot whose measured state lags what it was told)."""
         late = now - start
         from_rest = late > 0.0 and not self.moving(now) and np.abs(traj.state_at(0.0)[1]).max() < 1e-6
-        at = now if from_rest else start
-        gap = np.abs(traj.state_at(0.0)[0] - self.state(at)[0])
-        if tolerance is not None and gap.max() > tolerance:
+        q0 = traj.state_at(0.0)[0]
+        shifts = [now - start] if from_rest else ([0.0, self.lag] if self.lag > 0.0 else [0.0])
+        gaps = [np.abs(q0 - self.state(start + d)[0]) for d in shifts]
+        k = int(np.argmin([g.max() for g in gaps]))
+        if tolerance is not None and gaps[k].max() > tolerance:
+            gap = gaps[0]
             j = int(np.argmax(gap))
             raise InvalidInputError(
                 f"the trajectory starts {gap[j]:.3f} rad away from where joint {j + 1} is at its start: following "
                 f"it would jump (more than {tolerance} rad); plan from the measured joint states"
             )
-        self.add(traj, at)
-        return late if from_rest else 0.0
+        if np.abs(traj.state_at(0.0)[1]).max() < 1e-6 and not self.moving(start + shifts[k]):
+            self.lag = shifts[k] if from_rest else 0.0  # a new motion from rest: the account starts anew
+        self.add(traj, start + shifts[k])
+        return shifts[k]
 
     def stop_along(self, now: float, acceleration) -> float | None:
         """Brake along the path running at `now` (the robot's own stop: the service is gone, or the robot stalled)
