@@ -416,11 +416,7 @@ class ControllerConfig(Section):
     )
     joint_state_timeout: float = Field(0.25, gt=0.0, description="Joint states silent this long: brake, fail [s].")
     robot_watchdog: float = Field(
-        1.0,
-        gt=0.0,
-        le=10.0,
-        description="The robot brakes along its path when the service's status is silent this long [s] (or at "
-        "once when its liveliness token goes): `replanner robot`.",
+        1.0, gt=0.0, le=10.0, description="`replanner robot` brakes when the service is silent this long [s]."
     )
     robot_stall_after: float = Field(
         0.25, gt=0.0, le=10.0, description="`replanner robot` not stepped this long [s] stalled: it brakes."
@@ -436,13 +432,13 @@ class ControllerConfig(Section):
     )
     sensor_timeout: float = Field(1.0, gt=0.0, description="A configured camera silent this long: brake, fail [s].")
     goal_tolerance: float = Field(0.01, gt=0.0, description="Reached when every joint is this close [rad].")
+    tracking_tolerance: float = Field(
+        0.25, gt=0.0, le=3.0, description="A joint this far from its command [rad]: the robot does not follow: fail."
+    )
     settle_timeout: float = Field(1.0, gt=0.0, description="Time after the trajectory's end to reach the goal [s].")
     brake_latency: float = Field(0.01, ge=0.0, le=0.5, description="A brake starts this long after it is decided [s].")
     start_lead: float = Field(
-        0.05,
-        ge=0.0,
-        le=1.0,
-        description="A motion from rest starts this long after it is sent [s]: it must reach the robot first.",
+        0.05, ge=0.0, le=1.0, description="A motion from rest starts this long after it is sent [s] (to reach it)."
     )
     planning_process: bool = Field(
         True, description="Plan in a child process (a second core; with the GIL a thread shares the monitor's core)."

@@ -211,7 +211,10 @@ class Service:
             stamp, q, qd = m.decode_joint_state(sample.payload.to_bytes(), self.robot.joint_names, self._js_frames)
             last = self.last_js.stamp if self.last_js is not None else None
             admit_joint_state(stamp, q, last=last, now=self.clock(), robot=self.robot, cfg=self.cfg.controller)
-            js = JointState(stamp, q, qd if qd is not None else np.zeros_like(q))
+            if qd is None:  # a robot that sends no velocities: the last step's
+                prev = self.last_js
+                qd = (q - prev.position) / (stamp - prev.stamp) if prev is not None else np.zeros_like(q)
+            js = JointState(stamp, q, qd)
             self.stack.on_joint_state(js)
         except (InvalidInputError, ReplannerError) as err:
             self._reject("joint_states", err)

@@ -101,6 +101,7 @@ class Controller(Holding):
         self._pending_since = self._hold_since = self._hold_planned = 0.0
         self._settle_until = math.inf
         self._resumable, self.last_clearance = True, None  # held on its own path: it may resume it once clear
+        self.tracking_error: float | None = None  # [rad] measured arm vs the record at its stamp (last check)
 
     # ------------------------------------------------------------------ observers and history
     def _record(self, event) -> None:
@@ -373,7 +374,10 @@ class Controller(Holding):
         if self.cfg.reaction == Reaction.NONE:  # the comparison baseline: plan once, never look again
             self._reached(now)
             return
-        holding, q = state == State.HOLDING.value, self.moves.resync(self.measured(), now)  # a late start: re-anchor
+        js = self.liveness.last_js[1]
+        holding, q = state == State.HOLDING.value, self.moves.resync(js.position, now, js.velocity)  # a late start
+        if self._off_track(js):
+            return
         # holding: the way to the goal, not the stretch the brake still travels
         view = self.monitor.view(self.moves.timeline, now, q, to_curve_end=holding, check_gap=self._check_gap)
         if view is None:
@@ -409,6 +413,19 @@ class Controller(Holding):
                 self._set_speed(speed.speed_factor)
         elif state == State.PENDING.value:
             self._check_pending(now, view, speed.speed_factor)
+
+    def _off_track(self, js) -> bool:
+        """The measured arm far from its command at the joint state's stamp: nothing decided on the record holds."""
+        off = np.abs(js.position - self.moves.timeline.state(js.stamp)[0])
+        self.tracking_error = float(off.max())
+        if self.tracking_error <= self.cfg.tracking_tolerance:
+            return False
+        j = int(np.argmax(off))
+        self._safe_stop(
+            f"the robot does not follow its trajectory: {self.robot.joint_names[j]} is {off[j]:.3f} rad from where "
+            f"it was told to be (tracking_tolerance {self.cfg.tracking_tolerance} rad); did it refuse one?"
+        )
+        return True
 
     def _reflex(self, now: float, why: str, launch: bool, urgent: bool = False) -> None:
         """Swerve if the reaction has a reflex; `launch`: a replan in flight was for the motion before the swerve."""
@@ -475,6 +492,7 @@ class Controller(Holding):
             "checks": self.monitor.stats.checks,
             "clearance": self.last_clearance,
             "speed_factor": self.moves.speed_factor(),
+            "tracking_error": self.tracking_error,  # [rad] the largest joint's, at the last check
             "swerves": self.swerve.count if self.swerve is not None else 0,
             "not_ready": self.liveness.silent(now, ready=True),  # why a goal sent now would be refused
             "latency": self.latency.report(now),

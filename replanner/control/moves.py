@@ -61,10 +61,11 @@ class Moves:
             self._splice = traj
         return start
 
-    def resync(self, q, now: float):
-        """The measured arm `q` [rad] well behind a motion from rest that should be under way: the robot got it
-        late and started it on arrival, so the record is moved to when it started (every brake, slow-down and splice
-        is then computed from where the arm is, not from where it would be). Returns q."""
+    def resync(self, q, now: float, qd=None):
+        """The measured arm `q` [rad] well behind a motion from rest that should be under way, moving as the motion
+        does there (`qd` [rad/s], if given: a robot that stopped on its own is not late): the robot got it late and
+        started it on arrival, so the record is moved to when it started (every brake, slow-down and splice is then
+        computed from where the arm is, not from where it would be). Returns q."""
         seg = self.timeline.active(now)
         if q is None or seg is None or self.timeline.later(now):
             return q
@@ -77,6 +78,10 @@ class Moves:
         ts = np.linspace(max(ts[np.argmin(gap)] - 0.005, 0.0), ts[np.argmin(gap)] + 0.005, 21)  # then finer
         gap = np.linalg.norm(traj.evaluate(ts, order=0)[0] - q, axis=1)
         k = int(np.argmin(gap))
+        if qd is not None:
+            v = traj.state_at(ts[k])[1]
+            if np.abs(np.asarray(qd) - v).max() > 0.05 + 0.1 * np.abs(v).max():  # [rad/s]: stopped, not late
+                return q
         if t - ts[k] > LATE_START and gap[k] < FOLLOWING:
             self.timeline.shift(traj, start + t - ts[k])
             self.log_event("resync", late=round(t - ts[k], 3))
