@@ -287,25 +287,31 @@ def test_joint_state_silence_brakes_and_fails(make_sim):
     sim.joint_states_on = True
 
 
-def test_a_robot_that_does_not_follow_fails_the_goal_and_the_next_plans_from_where_it_stands(make_sim):
-    """The robot stops on its own mid-motion (it refused a trajectory, or a protective stop): the controller's record
-    has the arm going on, so nothing it would decide holds. It sees the measured arm off its command and fails."""
-    sim = make_sim()
-    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
-    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
-    wait_state(sim, State.MONITORING)
-    sim.run_for(0.4)
-    assert sim.controller.tracking_error < 1e-9  # a robot that follows exactly
-    sim.timeline.stop_along(sim.t, sim.robot.limits.acceleration)  # the robot's own stop
-    res = result(sim, h, 5)
-    assert res.status == GoalStatus.FAILED and "does not follow its trajectory" in res.reason, res.reason
-    assert edges(sim)[-1][2] == "fault"
-    assert sim.controller.tracking_error > sim.controller.cfg.tracking_tolerance
-    sim.run_until(lambda: at_rest(sim), 3.0, "the arm at rest")
-    stood = sim.state().position
-    assert np.abs(stood - B).max() > 0.3
-    assert go_to(sim, A, "back").status == GoalStatus.SUCCEEDED  # planned from where the arm stands
-    assert np.abs(sim.state().position - A).max() < 0.01
+def test_a_robot_that_does_not_follow_fails_the_goal_and_the_next_plans_from_where_it_stands(panda):
+    """The robot stops on its own mid-motion (a protective stop; it refuses what would make it jump, as `replanner
+    robot` does): the controller's record has the arm going on, so nothing it would decide holds. It sees the
+    measured arm off its command, fails the goal, and the next goal plans from where the arm stands."""
+    cfg = parse_config(copy.deepcopy(sim_config()), base_dir=CONFIGS)
+    sim = SteppedSim(cfg, [TABLE], robot=panda, seed=3, refuses_jumps=True)
+    try:
+        sim.timeline.hold(A, sim.t)  # moved by hand before the service looked: the record still says home
+        sim.run_for(0.1)
+        assert go_to(sim, B, "first").status == GoalStatus.SUCCEEDED  # an older rest in the record is no fault
+        h = submit(sim, Goal.joints("across", A, velocity_scale=SLOW))
+        wait_state(sim, State.MONITORING)
+        sim.run_for(0.4)
+        assert sim.controller.tracking_error < 1e-9  # a robot that follows exactly
+        sim.timeline.stop_along(sim.t, sim.robot.limits.acceleration)  # the robot's own stop
+        res = result(sim, h, 5)
+        assert res.status == GoalStatus.FAILED and "does not follow its trajectory" in res.reason, res.reason
+        assert edges(sim)[-1][2] == "fault" and sim.refused == 1  # the brake from the record would have jumped
+        assert sim.controller.tracking_error > cfg.controller.tracking_tolerance
+        sim.run_until(lambda: at_rest(sim), 3.0, "the arm at rest")
+        assert np.abs(sim.state().position - A).max() > 0.3
+        assert go_to(sim, B, "back").status == GoalStatus.SUCCEEDED  # planned from where the arm stands
+        assert sim.refused == 1 and np.abs(sim.state().position - B).max() < 0.01
+    finally:
+        sim.close()
 
 
 def test_camera_silence_brakes_and_fails(make_sim):

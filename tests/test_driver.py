@@ -259,3 +259,19 @@ def test_a_brake_on_the_senders_account_joins_a_motion_the_robot_started_late(pa
     q_end = stop.state_at(stop.duration)[0]
     s2 = now[0] + 5.0
     assert robot.receive(gen.time(np.array([q_end, panda.home])), s2, s2 - 0.05) == 0.0 and robot.lag == 0.0
+
+
+def test_a_motion_queued_behind_a_late_one_runs_as_late_and_so_does_its_brake(panda):
+    """The sender queues a motion from rest after its account has the first one end; the robot, 80 ms behind, still
+    runs the first then: it runs the second 80 ms late as well, and a brake of the second too."""
+    gen = TrajectoryGenerator(panda)
+    robot = Timeline(panda.home)
+    m1 = gen.time(np.array([panda.home, panda.home + 0.6]))
+    assert robot.receive(m1, 10.0, 10.08) == pytest.approx(0.08)  # started on arrival
+    s2 = 10.0 + m1.duration + 0.03  # 30 ms after the first ends on the sender's account, 50 ms before the robot's
+    m2 = gen.time(np.array([panda.home + 0.6, panda.home]))
+    assert robot.moving(s2) and robot.receive(m2, s2, s2 - 0.5) == pytest.approx(0.08)
+    assert robot.lag == pytest.approx(0.08)
+    stop = gen.brake(m2, 0.4)
+    assert np.abs(stop.state_at(0.0)[0] - robot.state(s2 + 0.4)[0]).max() > 0.02  # as stamped it would jump
+    assert robot.receive(stop, s2 + 0.4, s2 + 0.39) == pytest.approx(0.08)

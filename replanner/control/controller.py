@@ -32,7 +32,7 @@ from .history import History, TransitionRecord
 from .holding import Holding
 from .inbox import Inbox, Input
 from .latency import LatencyAccount
-from .liveness import Liveness
+from .liveness import Liveness, off_record
 from .moves import Moves
 from .states import State, edges
 from .swerves import Swerves
@@ -223,6 +223,8 @@ class Controller(Holding):
             reason = f"goal id {handle.id!r} is already active; use a new id"
         else:
             reason = self.liveness.silent(self.clock(), ready=True)
+        if reason is None and self.state == State.WAITING.value:  # a robot that stopped on its own: plan from there
+            reason = self.moves.settle(self.liveness.last_js[1], self.cfg.tracking_tolerance)
         if reason is None:
             try:
                 return self.planner.resolve_goal(self.measured(), handle.goal.target, handle.goal.padding)
@@ -375,8 +377,12 @@ class Controller(Holding):
             self._reached(now)
             return
         js = self.liveness.last_js[1]
-        holding, q = state == State.HOLDING.value, self.moves.resync(js.position, now, js.velocity)  # a late start
-        if self._off_track(js):
+        holding, q = state == State.HOLDING.value, self.moves.resync(js.position, js.stamp, js.velocity)  # late
+        self.tracking_error, why = off_record(
+            js, self.moves.timeline, self.robot.joint_names, self.cfg.tracking_tolerance
+        )
+        if why is not None:
+            self._safe_stop(why)
             return
         # holding: the way to the goal, not the stretch the brake still travels
         view = self.monitor.view(self.moves.timeline, now, q, to_curve_end=holding, check_gap=self._check_gap)
@@ -413,19 +419,6 @@ class Controller(Holding):
                 self._set_speed(speed.speed_factor)
         elif state == State.PENDING.value:
             self._check_pending(now, view, speed.speed_factor)
-
-    def _off_track(self, js) -> bool:
-        """The measured arm far from its command at the joint state's stamp: nothing decided on the record holds."""
-        off = np.abs(js.position - self.moves.timeline.state(js.stamp)[0])
-        self.tracking_error = float(off.max())
-        if self.tracking_error <= self.cfg.tracking_tolerance:
-            return False
-        j = int(np.argmax(off))
-        self._safe_stop(
-            f"the robot does not follow its trajectory: {self.robot.joint_names[j]} is {off[j]:.3f} rad from where "
-            f"it was told to be (tracking_tolerance {self.cfg.tracking_tolerance} rad); did it refuse one?"
-        )
-        return True
 
     def _reflex(self, now: float, why: str, launch: bool, urgent: bool = False) -> None:
         """Swerve if the reaction has a reflex; `launch`: a replan in flight was for the motion before the swerve."""

@@ -73,3 +73,22 @@ def admit_joint_state(stamp: float, q, *, last: float | None, now: float, robot,
         )
     if last is not None and stamp <= last:
         raise InvalidInputError(f"joint_states: stamp {stamp:.6f} is not newer than the last one taken ({last:.6f})")
+
+
+STANDING = 0.05  # [rad/s] a measured arm slower than this on every joint stands
+
+
+def off_record(js, timeline, names, tolerance: float) -> tuple[float | None, str | None]:
+    """How far [rad] the measured arm `js` is from where `timeline` told it to be at its stamp (None while both
+    stand: before a motion starts the record may still hold an older rest), and why that is too far for the robot
+    to be following (beyond `tolerance` [rad]; else None)."""
+    if not timeline.moving(js.stamp) and np.abs(js.velocity).max() < STANDING:
+        return None, None
+    off = np.abs(js.position - timeline.state(js.stamp)[0])
+    if off.max() <= tolerance:
+        return float(off.max()), None
+    j = int(np.argmax(off))
+    return float(off.max()), (
+        f"the robot does not follow its trajectory: {names[j]} is {off[j]:.3f} rad from where it was told to be "
+        f"(controller.tracking_tolerance {tolerance} rad): did it refuse one, or stop on its own?"
+    )

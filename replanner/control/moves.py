@@ -8,6 +8,7 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from ..trajectory import Trajectory, TrajectoryError, TrajectoryGenerator
+from .liveness import STANDING
 from .timeline import Timeline
 
 log = logging.getLogger(__name__)
@@ -80,12 +81,28 @@ class Moves:
         k = int(np.argmin(gap))
         if qd is not None:
             v = traj.state_at(ts[k])[1]
-            if np.abs(np.asarray(qd) - v).max() > 0.05 + 0.1 * np.abs(v).max():  # [rad/s]: stopped, not late
+            if np.abs(np.asarray(qd) - v).max() > 0.1 + 0.25 * np.abs(v).max():  # [rad/s]: stopped, not late
                 return q
         if t - ts[k] > LATE_START and gap[k] < FOLLOWING:
             self.timeline.shift(traj, start + t - ts[k])
             self.log_event("resync", late=round(t - ts[k], 3))
         return q
+
+    def settle(self, js, tolerance: float) -> str | None:
+        """Before a plan from rest: the measured arm `js` standing away from where the record has it (the robot
+        stopped on its own: a refused trajectory, a protective stop) makes the record hold it where it stands, so the
+        plan starts there. Returns why no plan can start yet (the arm still moves, off the record by more than
+        `tolerance` [rad]), else None."""
+        off = np.abs(js.position - self.timeline.state(js.stamp)[0]).max()
+        if off <= FOLLOWING:
+            return None
+        if np.abs(js.velocity).max() < STANDING:
+            self.timeline.hold(js.position, js.stamp)
+            self.log_event("settled", off=round(float(off), 4))
+            return None
+        if off > tolerance:
+            return f"the arm still moves, {off:.3f} rad from where it was told to be: send the goal once it stands"
+        return None
 
     def speed_factor(self) -> float | None:
         """The share of its nominal speed the running motion is timed at, or None at rest."""

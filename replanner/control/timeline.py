@@ -68,9 +68,13 @@ class Timeline:
                 f"it would jump (more than {tolerance} rad); plan from the measured joint states"
             )
         if np.abs(traj.state_at(0.0)[1]).max() < 1e-6 and not self.moving(start + shifts[k]):
-            self.lag = shifts[k] if from_rest else 0.0  # a new motion from rest: the account starts anew
+            self.lag = shifts[k]  # a new motion from rest: as late as it starts
         self.add(traj, start + shifts[k])
         return shifts[k]
+
+    def hold(self, q, t: float) -> None:
+        """Stand at `q` [rad] from `t` on (what runs from then is dropped)."""
+        self.add(_Rest(q), t)
 
     def stop_along(self, now: float, acceleration) -> float | None:
         """Brake along the path running at `now` (the robot's own stop: the service is gone, or the robot stalled)

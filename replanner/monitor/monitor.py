@@ -99,7 +99,7 @@ class Monitor:
         to_curve_end: on to the end of the running curve, not where its trajectory stops (a brake stops early).
         """
         seg = timeline.active(now)
-        if seg is None:
+        if seg is None or not isinstance(seg[1], Trajectory):  # at rest where the record was settled: no path
             return None
         start, traj = seg
         s_grid, q_grid = self._grid(traj, to_curve_end)

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..config import ReplannerConfig
 from ..control import JointState, Timeline
+from ..errors import InvalidInputError
 from ..perception import CameraModel, CloudFrame, CloudRejected, pose_from_config
 from ..stack import build_stack
 from ..world.geometry import Shape
@@ -31,6 +32,8 @@ class SteppedSim:
         camera_rate: frames per second of each camera, in simulated time.
         plan_delay: [s] of simulated time between a plan's request and its answer.
         camera_latency: [s] between a frame's exposure and its arrival at perception (a sensor pipeline's delay).
+        refuses_jumps: the robot refuses a trajectory that would make it jump and brakes along its path, as
+            `replanner robot` does (else it follows whatever it is sent).
     """
 
     def __init__(
@@ -44,12 +47,15 @@ class SteppedSim:
         camera_rate: float = 10.0,
         plan_delay: float = 0.05,
         camera_latency: float = 0.0,
+        refuses_jumps: bool = False,
     ):
         robot = robot or RobotModel.from_config(cfg.robot)
         self.t, self.dt = 0.0, float(dt)
         self.timeline = Timeline(robot.home, keep=100_000)  # what the robot follows, its whole history for tests
+        self.refused = 0  # trajectories the robot refused (refuses_jumps)
+        execute = self._receive if refuses_jumps else self.timeline.add
         self.stack = build_stack(
-            cfg, robot=robot, static=static, seed=seed, execute=self.timeline.add, plan_in="inline", clock=self.clock
+            cfg, robot=robot, static=static, seed=seed, execute=execute, plan_in="inline", clock=self.clock
         )
         st = self.stack
         st.worker.delay = plan_delay
@@ -116,6 +122,13 @@ class SteppedSim:
                     self.rejected.append(str(err))
             self.stack.worker.deliver()
             self.controller.step()
+
+    def _receive(self, traj, start: float) -> None:
+        try:
+            self.timeline.receive(traj, start, self.t)
+        except InvalidInputError:
+            self.refused += 1
+            self.timeline.stop_along(self.t, self.robot.limits.acceleration)
 
     def run_for(self, seconds: float) -> None:
         self.step(max(1, int(math.ceil(seconds / self.dt - 1e-9))))
