@@ -92,6 +92,7 @@ def _decide_all(
 ):  # fmt: skip
     B, O = ball_slot.shape[0], ob_kind.shape[0]
     BC, C = np.empty((B, 3)), np.empty((local.shape[0], 3))
+    sel = np.empty(local.shape[0], np.int64)
     S, small, none = np.empty((4, 3)), np.empty(3), np.zeros(3)
     placed = np.zeros(B, np.bool_)
     for j in range(idx.shape[0]):
@@ -141,7 +142,9 @@ def _decide_all(
                     if not placed[bo]:
                         _place(frames, n, ball_slot[bo], local, first[bo], first[bo + 1], C)
                         placed[bo] = True
-                if not spheres_meet_body(C, rad, first[a], first[a + 1], first[b], first[b + 1], BC, b, ball_r[b], sg):
+                if not spheres_meet_body(
+                    C, rad, first[a], first[a + 1], first[b], first[b + 1], BC, a, b, ball_r, sg, sel
+                ):
                     continue
                 if not (supported[a] and supported[b]):
                     verdict = 0

@@ -243,15 +243,26 @@ def spheres_meet_primitive(C, rad, first, last, grow, ob_inv, o, kind, ob_dim) -
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def spheres_meet_body(C, rad, a0, a1, b0, b1, BC, bb, ball_r, grow) -> bool:
-    """Whether a placed sphere of C[a0:a1] meets one of C[b0:b1] (radii grown by `grow` together); the second
-    body's bounding ball (centre BC[bb], radius `ball_r`) rules out most of the first's spheres."""
-    bx, by, bz, br = BC[bb, 0], BC[bb, 1], BC[bb, 2], ball_r + grow
+def spheres_meet_body(C, rad, a0, a1, b0, b1, BC, ba, bb, ball_r, grow, sel) -> bool:
+    """Whether a placed sphere of body ba's C[a0:a1] meets one of body bb's C[b0:b1] (radii grown by `grow`
+    together); each body's bounding ball (centres BC, radii ball_r) rules out most of the other's spheres first.
+    `sel`: scratch for bb's spheres near ba's ball."""
+    ax, ay, az, ar = BC[ba, 0], BC[ba, 1], BC[ba, 2], ball_r[ba] + grow
+    m = 0
+    for c in range(b0, b1):
+        d0, d1, d2 = C[c, 0] - ax, C[c, 1] - ay, C[c, 2] - az
+        if d0 * d0 + d1 * d1 + d2 * d2 <= (rad[c] + ar) ** 2:
+            sel[m] = c
+            m += 1
+    if m == 0:
+        return False
+    bx, by, bz, br = BC[bb, 0], BC[bb, 1], BC[bb, 2], ball_r[bb] + grow
     for a in range(a0, a1):
         d0, d1, d2 = C[a, 0] - bx, C[a, 1] - by, C[a, 2] - bz
         if d0 * d0 + d1 * d1 + d2 * d2 > (rad[a] + br) ** 2:
             continue  # this sphere is apart from the other body's ball
-        for c in range(b0, b1):
+        for i in range(m):
+            c = sel[i]
             d0, d1, d2 = C[a, 0] - C[c, 0], C[a, 1] - C[c, 1], C[a, 2] - C[c, 2]
             reach = rad[a] + rad[c] + grow
             if d0 * d0 + d1 * d1 + d2 * d2 <= reach * reach:
@@ -313,12 +324,14 @@ def verdicts(
     C, IC = np.empty((local.shape[0], 3)), np.empty((in_local.shape[0], 3))
     BC, near = np.empty((B, 3)), np.empty(O, np.int64)
     placed = np.zeros(B, np.bool_)  # a body's spheres are placed only when its ball meets something
+    placed_in = np.zeros(B, np.bool_)  # and its inner balls only when a sphere meets something
+    sel = np.empty(local.shape[0], np.int64)
     for t in range(order.shape[0]):
         n = order[t]
         frames_of(Q, n, Fj, prismatic, joints, parents, frames, 0)
         for b in range(B):
             _place(frames, 0, ball_slot[b], ball_c, b, b + 1, BC)
-            placed[b] = False
+            placed[b] = placed_in[b] = False
         verdict = 1
         for b in range(B):
             x, y, z = BC[b, 0], BC[b, 1], BC[b, 2]
@@ -331,7 +344,6 @@ def verdicts(
                     m += 1
             if m > 0 and not placed[b]:
                 _place(frames, 0, ball_slot[b], local, first[b], first[b + 1], C)
-                _place(frames, 0, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
                 placed[b] = True
             hit = False  # a covering sphere meets an obstacle: then maybe an inner ball does too (certain)
             for i in range(m):
@@ -342,6 +354,8 @@ def verdicts(
                     break
             if hit:
                 verdict = 0
+                _place(frames, 0, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
+                placed_in[b] = True
                 for i in range(m):
                     o = near[i]
                     if not ob_exact[o]:
@@ -358,7 +372,6 @@ def verdicts(
                 if ball_in_map(sat, key_min, inv_res, x, y, z, ball_r[b] + mg):
                     if not placed[b]:
                         _place(frames, 0, ball_slot[b], local, first[b], first[b + 1], C)
-                        _place(frames, 0, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
                         placed[b] = True
                     if spheres_meet_map(C, rad, first[b], first[b + 1], mg, sat, key_min, inv_res):
                         verdict = 0
@@ -371,13 +384,16 @@ def verdicts(
                 for bo in (ba, bb):
                     if not placed[bo]:
                         _place(frames, 0, ball_slot[bo], local, first[bo], first[bo + 1], C)
-                        _place(frames, 0, ball_slot[bo], in_local, in_first[bo], in_first[bo + 1], IC)
                         placed[bo] = True
                 if not spheres_meet_body(
-                    C, rad, first[ba], first[ba + 1], first[bb], first[bb + 1], BC, bb, ball_r[bb], sg
+                    C, rad, first[ba], first[ba + 1], first[bb], first[bb + 1], BC, ba, bb, ball_r, sg, sel
                 ):
                     continue
                 verdict = 0
+                for bo in (ba, bb):  # inner balls are placed only when a contact for certain may be found
+                    if not placed_in[bo]:
+                        _place(frames, 0, ball_slot[bo], in_local, in_first[bo], in_first[bo + 1], IC)
+                        placed_in[bo] = True
                 for a in range(in_first[ba], in_first[ba + 1]):  # two inner balls overlap: a contact for certain
                     for c in range(in_first[bb], in_first[bb + 1]):
                         d0, d1, d2 = IC[a, 0] - IC[c, 0], IC[a, 1] - IC[c, 1], IC[a, 2] - IC[c, 2]
