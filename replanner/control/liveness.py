@@ -78,13 +78,18 @@ def admit_joint_state(stamp: float, q, *, last: float | None, now: float, robot,
 STANDING = 0.05  # [rad/s] a measured arm slower than this on every joint stands
 
 
+def record_gap(js, timeline) -> np.ndarray:
+    """Per joint, how far [rad] the measured arm `js` is from where `timeline` told it to be at the state's stamp."""
+    return np.abs(js.position - timeline.state(js.stamp)[0])
+
+
 def off_record(js, timeline, names, tolerance: float) -> tuple[float | None, str | None]:
     """How far [rad] the measured arm `js` is from where `timeline` told it to be at its stamp (None while both
     stand: before a motion starts the record may still hold an older rest), and why that is too far for the robot
     to be following (beyond `tolerance` [rad]; else None)."""
     if not timeline.moving(js.stamp) and np.abs(js.velocity).max() < STANDING:
         return None, None
-    off = np.abs(js.position - timeline.state(js.stamp)[0])
+    off = record_gap(js, timeline)
     if off.max() <= tolerance:
         return float(off.max()), None
     j = int(np.argmax(off))

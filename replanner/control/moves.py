@@ -8,7 +8,7 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from ..trajectory import Trajectory, TrajectoryError, TrajectoryGenerator
-from .liveness import STANDING
+from .liveness import STANDING, record_gap
 from .timeline import Timeline
 
 log = logging.getLogger(__name__)
@@ -93,7 +93,7 @@ class Moves:
         stopped on its own: a refused trajectory, a protective stop) makes the record hold it where it stands, so the
         plan starts there. Returns why no plan can start yet (the arm still moves, off the record by more than
         `tolerance` [rad]), else None."""
-        off = np.abs(js.position - self.timeline.state(js.stamp)[0]).max()
+        off = record_gap(js, self.timeline).max()
         if off <= FOLLOWING:
             return None
         if np.abs(js.velocity).max() < STANDING:

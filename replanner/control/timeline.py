@@ -55,8 +55,9 @@ class Timeline:
         Raises InvalidInputError for a trajectory that does not start where the robot is told to be then (by more
         than `tolerance` [rad]; None: not checked, e.g. a robot whose measured state lags what it was told)."""
         late = now - start
-        from_rest = late > 0.0 and not self.moving(now) and np.abs(traj.state_at(0.0)[1]).max() < 1e-6
-        q0 = traj.state_at(0.0)[0]
+        q0, v0, _ = traj.state_at(0.0)
+        starts_at_rest = np.abs(v0).max() < 1e-6
+        from_rest = late > 0.0 and starts_at_rest and not self.moving(now)
         shifts = [now - start] if from_rest else ([0.0, self.lag] if self.lag > 0.0 else [0.0])
         gaps = [np.abs(q0 - self.state(start + d)[0]) for d in shifts]
         k = int(np.argmin([g.max() for g in gaps]))
@@ -67,7 +68,7 @@ class Timeline:
                 f"the trajectory starts {gap[j]:.3f} rad away from where joint {j + 1} is at its start: following "
                 f"it would jump (more than {tolerance} rad); plan from the measured joint states"
             )
-        if np.abs(traj.state_at(0.0)[1]).max() < 1e-6 and not self.moving(start + shifts[k]):
+        if starts_at_rest and not self.moving(start + shifts[k]):
             self.lag = shifts[k]  # a new motion from rest: as late as it starts
         self.add(traj, start + shifts[k])
         return shifts[k]
