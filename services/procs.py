@@ -9,6 +9,14 @@ import sys
 from pathlib import Path
 
 
+def _die_with_parent() -> None:
+    # Linux: the child gets SIGTERM when its parent dies, even killed: no services or busy loops left behind
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
 def replanner_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "replanner_services.cli", *args]
 
@@ -21,7 +29,9 @@ class Proc:
         self.log = log_dir / f"{name}.log"
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self._f = open(self.log, "w")  # noqa: SIM115 (closed in stop)
-        self.p = subprocess.Popen(args, stdout=self._f, stderr=subprocess.STDOUT, env=env, cwd=cwd)
+        self.p = subprocess.Popen(
+            args, stdout=self._f, stderr=subprocess.STDOUT, env=env, cwd=cwd, preexec_fn=_die_with_parent
+        )
 
     def tail(self, n: int = 40) -> str:
         return "\n".join(self.log.read_text(errors="replace").splitlines()[-n:])
@@ -51,7 +61,9 @@ class Load:
 
     def __enter__(self) -> Load:
         spin = f"import time\nend = time.monotonic() + {self.limit}\nwhile time.monotonic() < end: pass"
-        self.procs = [subprocess.Popen([sys.executable, "-c", spin]) for _ in range(self.n)]
+        self.procs = [
+            subprocess.Popen([sys.executable, "-c", spin], preexec_fn=_die_with_parent) for _ in range(self.n)
+        ]
         return self
 
     def __exit__(self, *exc) -> None:

@@ -8,6 +8,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import yaml
@@ -208,3 +209,29 @@ def test_a_config_error_is_one_red_line_and_exit_2():
     assert out.returncode == 2 and out.stdout == ""
     assert out.stderr.startswith("error: config file not found: no-such-profile") and "panda" in out.stderr
     assert "Traceback" not in out.stderr
+
+
+def test_busy_processes_and_services_die_with_a_killed_parent(tmp_path):
+    """A demo or bench killed outright (SIGKILL, no cleanup) leaves no busy loop or service running."""
+    parent = (
+        "import sys, time\n"
+        "from pathlib import Path\n"
+        "from replanner_services.procs import Load, Proc\n"
+        "load = Load(1).__enter__()\n"
+        f"p = Proc('sleeper', [sys.executable, '-c', 'import time; time.sleep(600)'], Path({str(tmp_path)!r}))\n"
+        "print(load.procs[0].pid, p.p.pid, flush=True)\n"
+        "time.sleep(600)\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", parent], stdout=subprocess.PIPE, text=True)
+    pids = [int(x) for x in proc.stdout.readline().split()]
+    assert len(pids) == 2 and all(Path(f"/proc/{p}").exists() for p in pids)
+    proc.kill()
+    proc.wait()
+    for pid in pids:  # the children are not ours to reap: gone means gone or a zombie of init's
+        for _ in range(100):
+            st = Path(f"/proc/{pid}/stat")
+            if not st.exists() or st.read_text().split(") ")[1].startswith("Z"):
+                break
+            time.sleep(0.1)
+        else:
+            raise AssertionError(f"process {pid} outlived its killed parent")

@@ -59,6 +59,11 @@ class Cell:
         states = pb.getJointStates(self.body, self.joint_ids, physicsClientId=self.client)
         return np.array([s[0] for s in states]), np.array([s[1] for s in states])
 
+    def set_state(self, q: np.ndarray, qd: np.ndarray) -> None:
+        """Put the arm at `q` [rad] moving at `qd` [rad/s], without physics."""
+        for j, value, rate in zip(self.joint_ids, q, qd):
+            pb.resetJointState(self.body, j, float(value), float(rate), physicsClientId=self.client)
+
     def tip_pose(self) -> np.ndarray:
         ls = pb.getLinkState(self.body, self.tip_index, computeForwardKinematics=1, physicsClientId=self.client)
         return make_transform(ls[4], ls[5])

@@ -117,13 +117,16 @@ class PhysicsSim:
         self.qd = np.zeros_like(q0)
         self.steps = 0
         self.rejected = 0
-        self.dropped = 0.0  # [s] of backlog the loop skipped on a busy machine
+        self.dropped = 0.0  # [s] of backlog walked without physics on a busy machine
         self.late = 0  # trajectories from rest that arrived after their start
         self.t = time.time()  # the last physics step's time [s]
+        self._t0, self._k = self.t, 0  # step k runs at _t0 + k / physics_hz
+        self._rtf_mark: tuple[float, int] | None = None
 
     # ------------------------------------------------------------------ running
     def start(self) -> PhysicsSim:
         self.event("start", seed=self.seed, operator=self.op_on, physics_hz=self.sc.physics_hz)
+        self._t0, self._k = time.time(), 0
         self._thread = threading.Thread(target=self._loop, name="physics", daemon=True)
         self._thread.start()
         return self
@@ -190,25 +193,44 @@ class PhysicsSim:
 
     # ------------------------------------------------------------------ the loop
     def _loop(self) -> None:
-        self._rtf_mark: tuple[float, int] | None = None
         dt = 1.0 / self.sc.physics_hz
-        t0 = time.time()
-        k = 0
         while not self._stop.is_set():
-            due = int((time.time() - t0) / dt)
-            burst = 0
-            while k <= due and burst < MAX_BURST:  # fell behind (a busy machine): catch up, but keep answering
-                self._tick(k, t0 + k * dt)
-                k += 1
-                burst += 1
-            if burst >= MAX_BURST:
-                t_new = time.time() - k * dt  # drop the backlog rather than run in a burst forever
-                self.dropped += t_new - t0
-                t0 = t_new
+            self.advance(time.time())
             self._run_calls()
-            delay = t0 + k * dt - time.time()
+            delay = self._t0 + self._k * dt - time.time()
             if delay > 0:
                 time.sleep(delay)
+
+    def advance(self, now: float) -> None:
+        """Run the steps due by `now` [s]: under physics up to MAX_BURST of them; a longer backlog (a busy machine)
+        is walked kinematically along the command (loop thread)."""
+        dt = 1.0 / self.sc.physics_hz
+        due = int((now - self._t0) / dt)
+        burst = 0
+        while self._k <= due and burst < MAX_BURST:  # fell behind: catch up, but keep answering calls
+            self._tick(self._k, self._t0 + self._k * dt)
+            self._k += 1
+            burst += 1
+        if self._k <= due:
+            self._skip(self._k, due + 1)
+            self.dropped += (due + 1 - self._k) * dt
+            self._k = due + 1
+
+    def _skip(self, k0: int, k1: int) -> None:
+        # a real robot's controller keeps following its command while the sim computes nothing: the arm goes on
+        # along it (a frozen arm jumped after the backlog and overshot into the bins), contacts measured on the way
+        dt, every = 1.0 / self.sc.physics_hz, self.every
+        g = self.suction
+        for k in range(k0, k1):
+            t = self._t0 + k * dt
+            if self.op_on and k % every["operator"] == 0:
+                self.operator.operate(t)  # the operator keeps its pace too
+            if k % every["truth"] == 0 or k == k1 - 1:
+                self.t = t
+                self.cell.set_state(*self.timeline.state(t))
+                g.follow_tip()
+                c = self.truth.measure(t, holding=g.holding, part_in=g.part_in, operator=self.operator.present)
+                self._window = min(self._window, c)
 
     def _tick(self, k: int, t: float) -> None:
         """Physics step `k`, at `t` [s], and whatever is due on it."""
