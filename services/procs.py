@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
 import subprocess
 import sys
 from pathlib import Path
 
+# resolved here: a forked child of a threaded parent must not enter the dynamic loader
+_prctl = ctypes.CDLL(None, use_errno=True).prctl if sys.platform.startswith("linux") else None
+
 
 def _die_with_parent() -> None:
-    # Linux: the child gets SIGTERM when its parent dies, even killed: no services or busy loops left behind
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    # the child gets SIGTERM when its parent dies, even killed: no services or busy loops left behind
+    if _prctl is not None:
+        _prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
 def replanner_cmd(*args: str) -> list[str]:
