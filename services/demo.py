@@ -134,7 +134,8 @@ def run(
     return metrics, rec, {"t0": t0, "t1": t1, "logs": logs}
 
 
-def _wait_ready(client: Client, session, procs: list[Proc], logs: Path, timeout: float = 120.0) -> None:
+def _wait_ready(client: Client, session, procs: list[Proc], logs: Path, timeout: float = 300.0) -> None:
+    # a fresh machine compiles the kernels on first use: a cold start beside two busy processes took over 120 s
     from replanner.apps.pick_place import Gripper
 
     end = time.monotonic() + timeout
