@@ -231,6 +231,8 @@ class PhysicsSim:
                 g.follow_tip()
                 c = self.truth.measure(t, holding=g.holding, part_in=g.part_in, operator=self.operator.present)
                 self._window = min(self._window, c)
+            if self.op_on and k % every["path"] == 0:
+                self.truth.check_path(t, self.operator.pose(), self.operator.count)  # reactions are timed from it
 
     def _tick(self, k: int, t: float) -> None:
         """Physics step `k`, at `t` [s], and whatever is due on it."""
