@@ -220,7 +220,6 @@ class PhysicsSim:
         # a real robot's controller keeps following its command while the sim computes nothing: the arm goes on
         # along it (a frozen arm jumped after the backlog and overshot into the bins), contacts measured on the way
         dt, every = 1.0 / self.sc.physics_hz, self.every
-        g = self.suction
         for k in range(k0, k1):
             t = self._t0 + k * dt
             if self.op_on and k % every["operator"] == 0:
@@ -228,11 +227,15 @@ class PhysicsSim:
             if k % every["truth"] == 0 or k == k1 - 1:
                 self.t = t
                 self.cell.set_state(*self.timeline.state(t))
-                g.follow_tip()
-                c = self.truth.measure(t, holding=g.holding, part_in=g.part_in, operator=self.operator.present)
-                self._window = min(self._window, c)
+                self.suction.follow_tip()
+                self._measure(t)
             if self.op_on and k % every["path"] == 0:
                 self.truth.check_path(t, self.operator.pose(), self.operator.count)  # reactions are timed from it
+
+    def _measure(self, t: float) -> None:
+        g = self.suction
+        c = self.truth.measure(t, holding=g.holding, part_in=g.part_in, operator=self.operator.present)
+        self._window = min(self._window, c)
 
     def _tick(self, k: int, t: float) -> None:
         """Physics step `k`, at `t` [s], and whatever is due on it."""
@@ -242,9 +245,7 @@ class PhysicsSim:
         if k % every["js"] == 0:
             self._publish_js(t)
         if k % every["truth"] == 0:
-            g = self.suction
-            c = self.truth.measure(t, holding=g.holding, part_in=g.part_in, operator=self.operator.present)
-            self._window = min(self._window, c)
+            self._measure(t)
         if op_on and k % every["path"] == 0:
             self.truth.check_path(t, self.operator.pose(), self.operator.count)
         if k % every["bodies"] == 0:
