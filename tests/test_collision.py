@@ -186,6 +186,24 @@ def test_broadphase_and_tables_never_change_a_verdict(panda, panda_cfg):
     np.testing.assert_array_equal(single, ref)
 
 
+def test_the_tables_coarse_blocks_give_the_fine_tables_answers(profile):
+    """A block's least clearance is asked before the grid point's: the same answer as the fine table alone."""
+    _, robot = profile
+    t = robot.self_clearance_tables()
+    rng = np.random.default_rng(2)
+    Q = robot.random_q(rng, 4000)
+    Q[::2] = np.clip(Q[::2] * 0.2, robot.limits.lower, robot.limits.upper)  # near zero, where links are close
+    fine = np.empty((len(Q), len(t)), bool)
+    for p in range(len(t)):
+        u0 = (Q[:, t.j0[p]] - t.lo0[p]) / t.step0[p]
+        u1 = (Q[:, t.j1[p]] - t.lo1[p]) / t.step1[p] if t.two[p] else np.zeros(len(Q))
+        i0, i1 = np.clip(np.rint(u0), 0, t.n0[p] - 1), np.clip(np.rint(u1), 0, t.n1[p] - 1)
+        slack = np.abs(u0 - i0) * t.r0[p] * t.step0[p] + np.abs(u1 - i1) * t.r1[p] * t.step1[p]
+        fine[:, p] = t.table[(i0 * t.n1[p] + i1 + t.offset[p]).astype(int)] <= slack
+    np.testing.assert_array_equal(t.may_collide(Q), fine)
+    assert 0 < fine.mean() < 1
+
+
 def test_oriented_box_test_never_separates_boxes_fcl_finds_touching():
     """The broadphase's separating axis test against FCL's box-box verdict on random oriented boxes (many of them
     with parallel faces and edges, where a cross axis vanishes): it never calls apart two boxes that touch, and it

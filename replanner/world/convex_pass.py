@@ -73,7 +73,7 @@ def decide_batch(
         cp.supported, layer.env_pad, layer.self_pad, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b, layer.local, layer.radius,
         layer.first, layer.ball_slot, layer.ball_c, layer.ball_r, layer.gf, layer.map_pad, layer.env_mask,
         layer.ob_kind, layer.ob_inv, layer.ob_dim, layer.ob_id, layer.ob_exact, layer.octree_mask, vol.sat,
-        vol.key_min, vol.inv_res,
+        vol.csat, vol.key_min, vol.inv_res,
     )  # fmt: skip
     return out
 
@@ -88,7 +88,7 @@ def _merge(verdict, r):
 def _decide_all(
     frames, idx, out, stop, P, D, pfirst, dfirst, supported, env_pad, self_pad, ob_R, ob_t, pair_a, pair_b,
     local, rad, first, ball_slot, ball_c, ball_r, gf, map_pad, env_mask,
-    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, key_min, inv_res,
+    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, csat, key_min, inv_res,
 ):  # fmt: skip
     B, O = ball_slot.shape[0], ob_kind.shape[0]
     BC, C = np.empty((B, 3)), np.empty((local.shape[0], 3))
@@ -126,11 +126,11 @@ def _decide_all(
             if verdict == -1:
                 break
             if verdict == APART and octree_mask[b]:  # the map's voxels: the spheres' test, else FCL's
-                if ball_in_map(sat, key_min, inv_res, x, y, z, ball_r[b] + map_pad * gf[b]):
+                if ball_in_map(sat, csat, key_min, inv_res, x, y, z, ball_r[b] + map_pad * gf[b]):
                     if not placed[b]:
                         _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
                         placed[b] = True
-                    if spheres_meet_map(C, rad, first[b], first[b + 1], map_pad * gf[b], sat, key_min, inv_res):
+                    if spheres_meet_map(C, rad, first[b], first[b + 1], map_pad * gf[b], sat, csat, key_min, inv_res):
                         verdict = 0
         if verdict != -1:
             for p in range(pair_a.shape[0]):

@@ -28,6 +28,7 @@ log = logging.getLogger(__name__)
 _FORMAT = 3
 DEFAULT_STEP = np.deg2rad(2.0)
 MAX_POINTS = 256
+BLOCK = 8  # grid points a side of a coarse cell: the cells' least clearances stay in cache and answer most lookups
 
 
 def default_cache_dir() -> Path:
@@ -80,9 +81,14 @@ class SelfClearanceTables:
             r1[i] = r[joints[1]] if len(joints) > 1 else 0.0
         self.r0, self.r1 = r0, r1
         self.table = self._load_or_build(rows, cache_dir)
-        self.lookup = self.table if len(self.table) else np.zeros(1)  # the table for compiled callers: never empty
-        # per pair, packed for the compiled lookups: joints, grid sizes, offset; lows, steps, slack per grid unit
-        self.packed_i = np.ascontiguousarray(np.stack([j0, j1, n0, n1, self.offset], axis=1).reshape(P, 5), np.int64)
+        coarse, self.cn1, self.coffset = self._coarse()
+        # the table for compiled callers (never empty), then each pair's least clearance per BLOCK x BLOCK points
+        self.lookup = np.concatenate([self.table, coarse]) if len(self.table) else np.zeros(1)
+        # per pair, packed for the compiled lookups: joints, grid sizes, offset, coarse columns and offset; lows,
+        # steps, slack per grid unit
+        self.packed_i = np.ascontiguousarray(
+            np.stack([j0, j1, n0, n1, self.offset, self.cn1, self.coffset], axis=1).reshape(P, 7), np.int64
+        )
         self.packed_f = np.ascontiguousarray(
             np.stack([self.lo0, self.lo1, self.step0, self.step1, r0 * self.step0, r1 * self.step1], axis=1).reshape(
                 P, 6
@@ -101,12 +107,29 @@ class SelfClearanceTables:
             self.n0,
             self.n1,
             self.offset,
+            self.cn1,
+            self.coffset,
             self.r0,
             self.r1,
             self.table,
         ):
             arr.setflags(write=False)
         self.may_collide(robot.home[None])  # compile the lookup now, not in the monitor's first check
+
+    def _coarse(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each pair's least clearance over blocks of BLOCK x BLOCK grid points, flat after the fine table; the
+        coarse columns per pair and each pair's offset in the lookup array."""
+        blocks, cols, offsets, at = [], [], [], len(self.table)
+        for i in range(len(self.pair_index)):
+            n0, n1 = int(self.n0[i]), int(self.n1[i])
+            t = self.table[self.offset[i] : self.offset[i] + n0 * n1].reshape(n0, n1)
+            b = np.minimum.reduceat(np.minimum.reduceat(t, np.arange(0, n0, BLOCK), 0), np.arange(0, n1, BLOCK), 1)
+            blocks.append(b.ravel())
+            cols.append(b.shape[1])
+            offsets.append(at)
+            at += b.size
+        return (np.concatenate(blocks) if blocks else np.zeros(0), np.array(cols, np.int64),
+                np.array(offsets, np.int64))  # fmt: skip
 
     @staticmethod
     def _reach(robot, bi: int) -> np.ndarray:
@@ -199,14 +222,17 @@ class SelfClearanceTables:
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def pair_maybe(Q, n, p, packed_i, packed_f, table) -> bool:
-    """Whether tabulated pair p may be in contact at Q[n]: its nearest grid point's clearance less Lipschitz slack."""
+    """Whether tabulated pair p may be in contact at Q[n]: its nearest grid point's clearance less Lipschitz slack.
+    The least clearance of that point's block is asked first: when it beats the slack, so does the point's."""
     j0, j1, n0, n1, off = packed_i[p, 0], packed_i[p, 1], packed_i[p, 2], packed_i[p, 3], packed_i[p, 4]
     u0 = (Q[n, j0] - packed_f[p, 0]) / packed_f[p, 2]
     u1 = (Q[n, j1] - packed_f[p, 1]) / packed_f[p, 3]
-    i0 = min(max(np.rint(u0), 0.0), n0 - 1.0)
-    i1 = min(max(np.rint(u1), 0.0), n1 - 1.0)
+    i0 = np.int64(min(max(np.rint(u0), 0.0), n0 - 1.0))
+    i1 = np.int64(min(max(np.rint(u1), 0.0), n1 - 1.0))
     slack = abs(u0 - i0) * packed_f[p, 4] + abs(u1 - i1) * packed_f[p, 5]
-    return table[np.int64(i0) * n1 + np.int64(i1) + off] <= slack
+    if table[(i0 // BLOCK) * packed_i[p, 5] + i1 // BLOCK + packed_i[p, 6]] > slack:
+        return False
+    return table[i0 * n1 + i1 + off] <= slack
 
 
 @numba.njit(cache=True, nogil=True)
