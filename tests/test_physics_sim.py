@@ -65,3 +65,30 @@ def test_contacts_in_a_backlog_are_measured(sim):
     assert hits and {e["object"] for e in hits} == {"table"}, sim.events
     assert min(e["deepest"] for e in sim.events if e["kind"] == "contact_end") < -0.05, sim.events
     np.testing.assert_allclose(sim.cell.joint_states()[0], home, atol=1e-6)
+
+
+def test_the_forearm_on_the_path_is_seen_in_a_backlog():
+    """The demo times reactions from the sim's `entered_path`: a backlog walked without physics still checks the
+    coming motion against the forearm at the path-check rate, not only after the backlog."""
+    events: list[dict] = []
+    sim = PhysicsSim(load_cell_config("demo"), operator=True, publish_truth=lambda e: events.append(json.loads(e)))
+    try:
+        home = sim.robot.home
+        goal = home + np.array([1.0, 0.3, 0.0, 0.5, 0.0, 0.0, 0.0])
+        traj = TrajectoryGenerator(sim.robot).time(np.array([home, goal]))
+        op = sim.operator
+        # the hand's point halfway along the motion: the forearm's tip waits there from the start
+        tip = sim.shadow.link_point(traj.state_at(0.5 * traj.duration)[0], sim.cell.robot.tip_link)
+        op.tip, op.start, op.target = tip.copy(), np.asarray(op.cfg.stand, float), tip.copy()
+        op.phase, op.until = "stay", np.inf
+        t0 = sim.t
+        burst_end = t0 + MAX_BURST / sim.sc.physics_hz
+        start = burst_end + 0.2  # the motion begins inside the walked part of the backlog
+        sim.add_trajectory(start, traj)
+        sim.advance(start + 0.5)  # one call: MAX_BURST steps of physics, the rest walked
+        assert sim.steps == MAX_BURST
+        entered = [e["stamp"] for e in events if e["kind"] == "entered_path"]
+        assert entered, events
+        assert start <= entered[0] <= start + 1.0 / sim.sc.path_check_hz + 1e-6, entered[0] - start
+    finally:
+        sim.stop()
