@@ -10,7 +10,7 @@ from replanner.world.collision import CollisionChecker
 from replanner.world.geometry import Box, Cylinder, Sphere, sample_surface
 from replanner.world.layered import FastChecker
 from replanner.world.scene import World
-from replanner.world.sphere_layer import CONTACT, FREE, UNSURE, VoxelVolume
+from replanner.world.sphere_layer import CONTACT, FREE, UNSURE, VoxelVolume, ball_meets_box, primitive_distance
 from replanner.world.spheres import cover
 from replanner.world.transforms import make_transform
 from tests.oracle import HULL_MARGIN, PyBulletOracle
@@ -163,3 +163,24 @@ def test_the_coarse_blocks_never_hide_a_voxel_a_box_meets():
             assert vol.count(lo, hi) == brute, (resolution, lo, hi)
             zero += brute == 0
         assert 30 < zero < 570, (resolution, zero)  # both answers are asked for
+
+
+def test_an_obstacles_world_box_never_parts_it_from_a_ball_that_meets_it(panda, panda_cfg):
+    """The layer skips an obstacle whose world box misses a body ball's box: never one the ball meets."""
+    rng = np.random.default_rng(8)
+    world = World(panda)
+    for k in range(12):
+        shapes = [Box(size=tuple(rng.uniform(0.02, 0.5, 3))), Cylinder(radius=0.06, length=0.4), Sphere(radius=0.1)]
+        shape = shapes[k % 3]
+        world.add(f"o{k}", shape, make_transform(rng.uniform(-0.6, 0.6, 3), rng.normal(size=4)))
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    layer, _ = FastChecker(checker).layer()
+    met = skipped = 0
+    for _ in range(20_000):
+        o, x, r = int(rng.integers(len(layer.ob_kind))), rng.uniform(-1.0, 1.0, 3), float(rng.uniform(0.0, 0.3))
+        meets = primitive_distance(layer.ob_inv, o, layer.ob_kind[o], layer.ob_dim, *x) <= r
+        boxed = ball_meets_box(layer.ob_box, o, *x, r)
+        assert boxed or not meets, (o, x, r)
+        met += meets
+        skipped += not boxed
+    assert met > 200 and skipped > 5000  # both answers are asked for

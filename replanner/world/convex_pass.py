@@ -13,10 +13,10 @@ from .geometry import Box, ConvexHull, Mesh, padding_directions
 from .gjk import APART, POINTS, TOUCH, decide
 from .sphere_layer import (
     SphereScene,
-    _distance,
     _place,
     ball_in_map,
     pair_grow,
+    primitive_distance,
     spheres_meet_body,
     spheres_meet_map,
     spheres_meet_primitive,
@@ -106,7 +106,9 @@ def _decide_all(
             x, y, z = BC[b, 0], BC[b, 1], BC[b, 2]
             eg = env_pad * gf[b]
             for o in range(O):
-                if not env_mask[b, ob_id[o]] or _distance(ob_inv, o, ob_kind[o], ob_dim, x, y, z) > ball_r[b] + eg:
+                if not env_mask[b, ob_id[o]]:
+                    continue
+                if primitive_distance(ob_inv, o, ob_kind[o], ob_dim, x, y, z) > ball_r[b] + eg:
                     continue
                 if not placed[b]:
                     _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)

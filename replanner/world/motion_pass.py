@@ -58,7 +58,7 @@ class BoundMotion:
 def _checked_motion(
     a, b, resolution, ahead, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints, parents,
     tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask,
-    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b,
+    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b,
 ):  # fmt: skip
     travel = 0.0
     for j in range(a.shape[0]):
@@ -84,8 +84,8 @@ def _checked_motion(
         if verdicts(
             Q, anchors, True, env_pad + ahead, map_pad + ahead, self_pad + ahead, F, prismatic, joints, parents,
             tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
-            env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, csat, key_min, inv_res, pair_a,
-            pair_b, v,
+            env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res,
+            pair_a, pair_b, v,
         ) >= 0:  # fmt: skip
             return -1, np.empty(0, np.int64), steps  # an inner ball's contact: no padding takes part in it
         for k in anchors:
@@ -102,7 +102,7 @@ def _checked_motion(
     if verdicts(
         Q, seq[~known[seq]], True, env_pad, map_pad, self_pad, F, prismatic, joints, parents, tab_i, tab_f, table,
         local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind, ob_inv,
-        ob_dim, ob_id, ob_exact, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, v,
+        ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, v,
     ) >= 0:  # fmt: skip
         return -1, np.empty(0, np.int64), steps
     unsure = np.empty(steps + 1, np.int64)

@@ -98,8 +98,8 @@ class SphereScene:
         self.reach = np.zeros(robot.dof)
         for s, c, r in zip(ball_slot, ball_c, ball_r):
             self.reach = np.maximum(self.reach, robot.frame_reach(int(s), float(np.linalg.norm(c)) + r))
-        # obstacles: kind, world -> obstacle (3, 4), dimensions, index in the scene's obstacle list
-        kind, inv, dim, oid, exact = [], [], [], [], []
+        # obstacles: kind, world -> obstacle (3, 4), dimensions, world box, index in the scene's obstacle list
+        kind, inv, dim, box, oid, exact = [], [], [], [], [], []
         names = [name for name, _ in scene.obstacles]
         for oi, name in enumerate(names):
             o = snap.objects[name]
@@ -120,10 +120,15 @@ class SphereScene:
                     dim.append([shape.radius, 0.0, 0.0])
                 else:
                     dim.append([shape.radius, shape.length / 2, 0.0])
+                d = dim[-1]
+                half = d if kind[-1] == BOX else [d[0]] * 3 if kind[-1] == BALL else [d[0], d[0], d[1]]
+                mid, ext = t + R @ c, np.abs(R) @ np.asarray(half, float)
+                box.append([*(mid - ext), *(mid + ext)])
                 oid.append(oi)
         self.ob_kind = np.array(kind, dtype=np.int64)
         self.ob_inv = np.array(inv, dtype=np.float64).reshape(-1, 3, 4)
         self.ob_dim = np.array(dim, dtype=np.float64).reshape(-1, 3)
+        self.ob_box = np.array(box, dtype=np.float64).reshape(-1, 6)  # lows, highs: a ball's box misses it, so does it
         self.ob_id = np.array(oid, dtype=np.int64)
         self.ob_exact = np.array(exact, dtype=np.bool_)
         self.env_mask = np.ascontiguousarray(scene.env_mask)
@@ -148,8 +153,8 @@ class SphereScene:
         return (
             *self.fk, self.tab_i, self.tab_f, self.tab, self.local, self.radius, self.first, self.in_local, self.in_rad,
             self.in_first, self.ball_slot, self.ball_c, self.ball_r, self.gf, self.env_mask, self.ob_kind, self.ob_inv,
-            self.ob_dim, self.ob_id, self.ob_exact, self.octree_mask, vol.sat, vol.csat, vol.key_min, vol.inv_res,
-            self.pair_a, self.pair_b,
+            self.ob_dim, self.ob_id, self.ob_exact, self.ob_box, self.octree_mask, vol.sat, vol.csat, vol.key_min,
+            vol.inv_res, self.pair_a, self.pair_b,
         )  # fmt: skip
 
 
@@ -237,7 +242,7 @@ def _box_sum(sat, a0, a1, a2, b0, b1, b2):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _distance(ob_inv, o, k, ob_dim, x, y, z):
+def primitive_distance(ob_inv, o, k, ob_dim, x, y, z):
     """Distance [m] from point (x, y, z) to solid primitive o (0 inside): kind k, world -> primitive ob_inv[o]."""
     p0 = ob_inv[o, 0, 0] * x + ob_inv[o, 0, 1] * y + ob_inv[o, 0, 2] * z + ob_inv[o, 0, 3]
     p1 = ob_inv[o, 1, 0] * x + ob_inv[o, 1, 1] * y + ob_inv[o, 1, 2] * z + ob_inv[o, 1, 3]
@@ -255,10 +260,23 @@ def _distance(ob_inv, o, k, ob_dim, x, y, z):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def ball_meets_box(ob_box, o, x, y, z, r) -> bool:
+    """Whether the box around the ball at (x, y, z) of radius r meets obstacle o's world box (lows, highs)."""
+    return not (
+        x + r < ob_box[o, 0]
+        or y + r < ob_box[o, 1]
+        or z + r < ob_box[o, 2]
+        or x - r > ob_box[o, 3]
+        or y - r > ob_box[o, 4]
+        or z - r > ob_box[o, 5]
+    )
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def spheres_meet_primitive(C, rad, first, last, grow, ob_inv, o, kind, ob_dim) -> bool:
     """Whether any placed sphere C[first:last] (radii grown by `grow`) meets primitive o of kind `kind`."""
     for s in range(first, last):
-        if _distance(ob_inv, o, kind, ob_dim, C[s, 0], C[s, 1], C[s, 2]) <= rad[s] + grow:
+        if primitive_distance(ob_inv, o, kind, ob_dim, C[s, 0], C[s, 1], C[s, 2]) <= rad[s] + grow:
             return True
     return False
 
@@ -334,7 +352,7 @@ def _place(frames, n, slot, P, first, last, out):
 def verdicts(
     Q, order, stop, env_pad, map_pad, self_pad, Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first,
     in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
-    octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, out,
+    ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, out,
 ):  # fmt: skip
     """out[n] for each n of `order` in turn: the verdict on configuration Q[n], forward kinematics included (1 free
     for certain, -1 in contact for certain, 0 unsure). `stop`: return at the first contact, its index in `order`;
@@ -360,7 +378,9 @@ def verdicts(
             eg, mg = env_pad * gf[b], map_pad * gf[b]
             reach = ball_r[b] + eg
             for o in range(O):
-                if env_mask[b, ob_id[o]] and _distance(ob_inv, o, ob_kind[o], ob_dim, x, y, z) <= reach:
+                if not env_mask[b, ob_id[o]] or not ball_meets_box(ob_box, o, x, y, z, reach):
+                    continue
+                if primitive_distance(ob_inv, o, ob_kind[o], ob_dim, x, y, z) <= reach:
                     near[m] = o
                     m += 1
             if m > 0 and not placed[b]:
@@ -382,7 +402,7 @@ def verdicts(
                     if not ob_exact[o]:
                         continue
                     for k in range(in_first[b], in_first[b + 1]):
-                        if _distance(ob_inv, o, ob_kind[o], ob_dim, IC[k, 0], IC[k, 1], IC[k, 2]) < in_rad[k]:
+                        if primitive_distance(ob_inv, o, ob_kind[o], ob_dim, IC[k, 0], IC[k, 1], IC[k, 2]) < in_rad[k]:
                             verdict = -1
                             break
                     if verdict == -1:
@@ -437,8 +457,8 @@ def verdicts(
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def _classify_parallel(
     Q, env_pad, map_pad, self_pad, Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local,
-    in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask,
-    sat, csat, key_min, inv_res, pair_a, pair_b, out,
+    in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box,
+    octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, out,
 ):  # fmt: skip
     N, chunk = Q.shape[0], 256
     for c in numba.prange((N + chunk - 1) // chunk):
@@ -446,5 +466,5 @@ def _classify_parallel(
         verdicts(
             Q, np.arange(lo, hi), False, env_pad, map_pad, self_pad, Fj, prismatic, joints, parents, tab_i, tab_f,
             table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind,
-            ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, out,
+            ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, out,
         )  # fmt: skip
