@@ -122,7 +122,7 @@ class SphereScene:
                     dim.append([shape.radius, shape.length / 2, 0.0])
                 d = dim[-1]
                 half = d if kind[-1] == BOX else [d[0]] * 3 if kind[-1] == BALL else [d[0], d[0], d[1]]
-                mid, ext = t + R @ c, np.abs(R) @ np.asarray(half, float)
+                mid, ext = t + R @ c, np.abs(R) @ np.asarray(half, float) + 1e-9  # rounding in the boxes' favour
                 box.append([*(mid - ext), *(mid + ext)])
                 oid.append(oi)
         self.ob_kind = np.array(kind, dtype=np.int64)
