@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import sys
+import threading
 import time
+import traceback
 
 import numpy as np
 import pybullet as pb
@@ -56,9 +59,8 @@ def run(
     try:
         for k in range(runs):
             home = ctl.submit(Goal.joints(f"to-start-{k}", A))
-            if home.wait(20) is None or home.result.status != GoalStatus.SUCCEEDED:
-                last = [(t.dest, t.reason) for t in ctl.transitions[-4:]]
-                raise RuntimeError(f"run {k}: could not return to the start: {home.result}; last transitions {last}")
+            if home.wait(60) is None or home.result.status != GoalStatus.SUCCEEDED:
+                raise RuntimeError(f"run {k}: could not return to the start: {home.result}; {_stuck(ctl)}")
             size = rng.uniform(0.08, 0.16)
             delay = rng.uniform(0.2, 0.4)
             seen = {}
@@ -159,6 +161,20 @@ def _drop(probe: PyBulletScene, robot, traj, t: float, size: float, time_to_cont
     finally:
         probe.remove("box")
     raise RuntimeError(f"no drop within {tries} draws touches the path {lo}-{hi} s ahead (closest: {best[1]:.2f} s)")
+
+
+def _stuck(ctl) -> str:
+    """What the controller was doing: its last transitions, how long its step has run, where its thread is."""
+    last = [(t.dest, t.reason) for t in ctl.transitions[-4:]]
+    frames = sys._current_frames()
+    where = [
+        "".join(traceback.format_stack(frames[t.ident])[-8:])
+        for t in threading.enumerate()
+        if t.name == "controller" and t.ident in frames
+    ]
+    return f"last transitions {last}; its step has run {ctl.inbox.stuck_for():.1f} s; its thread at:\n" + (
+        "\n".join(where) or "(no controller thread)"
+    )
 
 
 def _ms(a, b):
