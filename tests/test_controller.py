@@ -396,6 +396,30 @@ def test_held_the_replan_policy_goes_round_at_once_stop_and_wait_waits_its_inter
     assert took["replan"] < 3.0 < 6.0 <= took["stop_and_wait"], took
 
 
+def test_a_path_from_rest_that_speed_and_separation_would_stop_at_once_is_not_started(make_sim):
+    """Held by a box on its path with room to move, the replan policy plans its way round; the box comes within
+    the distance a reaction takes while it plans: the new path is dropped, not started and braked again at once
+    (the demo's co-worker reaching in did this), and the arm goes on along its own path once the box is gone."""
+    sim = make_sim(reaction="replan", pending_timeout=0.01, hold_timeout=60.0, speed_separation={"enabled": True})
+    sim.stack.worker.delay = 0.4  # [s] of simulated planning: time for the box to come closer
+    assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
+    h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
+    wait_state(sim, State.MONITORING)
+    _drop_on_path(sim, after=0.3, where=0.7)
+    wait_state(sim, State.HOLDING, within=5.0)
+    held = len(edges(sim))
+    sim.run_until(lambda: any(e["purpose"] == "hold" for e in _events(sim, "plan_requested")), 5.0, "a plan round")
+    hand = hand_at(sim, sim.state().position)
+    sim.move_obstacle("intruder", make_transform(hand + [0.3, 0.0, 0.0]))  # 3 cm from the arm: not touching it
+    sim.run_for(1.0)
+    dropped = [e for e in _events(sim, "plan_dropped") if e["purpose"] == "hold"]
+    assert dropped and "speed and separation" in dropped[0]["why"], sim.controller.events_log[-4:]
+    assert edges(sim)[held:] == [] and sim.controller.state == State.HOLDING.value, edges(sim)[held:]
+    sim.remove_obstacle("intruder")
+    assert result(sim, h, 30).status == GoalStatus.SUCCEEDED
+    assert edges(sim)[held:] == [("HOLDING", "MONITORING", "resume"), ("MONITORING", "WAITING", "succeeded")]
+
+
 def test_a_goal_with_its_own_padding_plans_and_runs_close_to_a_known_object(make_sim):
     """A goal 5 mm from a known block: refused at the configured 1 cm padding (the reason names the distance),
     planned and run with padding 2 mm, and the monitor looks at that path with the same padding (no brake)."""

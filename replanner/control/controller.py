@@ -306,6 +306,11 @@ class Controller(Holding):
         if answer.error is not None:
             self._plan_error(job, answer.error)
             return
+        if job.purpose is JobPurpose.HOLD and self.state == State.HOLDING.value:
+            why = self._start_blocked(answer.trajectory, now)
+            if why is not None:  # people came closer while it planned: the next check would only stop it again
+                self.log_event("plan_dropped", purpose=job.purpose.value, job=job.id, why=why)
+                return
         start = self.moves.send_planned(answer.trajectory, job.land)
         res = answer.result
         self.log_event(

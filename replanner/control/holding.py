@@ -36,6 +36,18 @@ class Holding:
             self._hold_planned = now
             self._launch(JobPurpose.HOLD, self._deadline())
 
+    def _start_blocked(self, traj, now: float) -> str | None:
+        """Why a new path from rest may not start now (speed and separation would stop it at once), or None."""
+        q = self.measured()
+        if q is None:
+            return None
+        speed = self.monitor.check_start(traj, now, q)
+        if speed.blocking is not None:
+            return speed.blocking.reason
+        if speed.speed_factor < self.cfg.speed_separation.min_speed_share:
+            return f"speed and separation allow {speed.speed_factor:.0%} of the speed"
+        return None
+
     def _hold_wait(self) -> float:  # replan goes round as soon as the arm stands; stop-and-wait waits first
         if self.cfg.reaction is Reaction.REFLEX:  # the reflex alone never plans: it waits for its own path
             return math.inf

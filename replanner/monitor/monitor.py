@@ -148,6 +148,13 @@ class Monitor:
         self._speed = (view.now, report)
         return report
 
+    def check_start(self, traj: Trajectory, now: float, q: np.ndarray) -> Report:
+        """Would the speed checks let `traj`, not yet sent, start from the arm at `q` now? (Not kept for
+        `check_speed`: that one judges the motion that runs.)"""
+        _, q_grid = self._grid(traj, False)
+        view = MotionView(now, q, np.vstack([q[None], q_grid[1:]]), 0.0, (now, traj), (traj, False), 0.0, self.padding)
+        return Report(tuple(check(view, False) for check in self.speed_checks))
+
     @staticmethod
     def _run(checks: list[Check], view: MotionView, fresh: bool) -> Report:
         out = []
