@@ -44,6 +44,7 @@ class History:
 
     def event(self, stamp: float, what: str, details: dict) -> None:
         _append(self.events, (stamp, what, details))
+        log.debug("%s at %.3f: %s", what, stamp, details)
 
     def result(self, result) -> None:
         _tell(self._on_result, result, "result")

@@ -457,7 +457,8 @@ class Planner:
 
         Bounded by counts; `t_end` (a time of `clock`, the plan's deadline) may only cut it short.
         """
-        W = self._skip_waypoints(W, t_end, resolution)
+        known: dict[tuple[bytes, bytes], bool] = {}  # the second skip asks again of waypoints the first one kept
+        W = self._skip_waypoints(W, t_end, resolution, known)
         misses = tries = 0
         while tries < self.shortcut_tries and len(W) > 2 and misses < 6 and self.clock() < t_end:
             tries += 1
@@ -475,21 +476,33 @@ class Planner:
                 misses = 0
             else:
                 misses += 1
-        return self._skip_waypoints(W, t_end, resolution)
+        return self._skip_waypoints(W, t_end, resolution, known)
 
-    def _skip_waypoints(self, W: np.ndarray, t_end: float = math.inf, resolution: float | None = None) -> np.ndarray:
+    def _skip_waypoints(
+        self, W: np.ndarray, t_end: float = math.inf, resolution: float | None = None, known: dict | None = None
+    ) -> np.ndarray:
         """From each kept waypoint, go straight to the farthest later one that is reachable in a straight line.
 
-        Past `t_end` (the plan's deadline) the rest of the path is kept as it is: valid, only longer."""
+        Past `t_end` (the plan's deadline) the rest of the path is kept as it is: valid, only longer. `known`: the
+        verdicts of straight motions already checked at this resolution, by their ends' bytes (read and filled)."""
         keep = np.concatenate([[True], np.linalg.norm(np.diff(W, axis=0), axis=1) > 1e-9])
         W = W[keep]
+        known = {} if known is None else known
+
+        def reachable(a: np.ndarray, b: np.ndarray) -> bool:
+            key = (a.tobytes(), b.tobytes())
+            ok = known.get(key)
+            if ok is None:
+                ok = known[key] = self._motion_ok(a, b, resolution)
+            return ok
+
         out, i = [W[0]], 0
         while i < len(W) - 1:
             if self.clock() >= t_end:
                 out.extend(W[i + 1 :])
                 break
             j = len(W) - 1
-            while j > i + 1 and not self._motion_ok(W[i], W[j], resolution):
+            while j > i + 1 and not reachable(W[i], W[j]):
                 j -= 1
             out.append(W[j])
             i = j
