@@ -11,6 +11,7 @@ from replanner.bench.scenes import add_table
 from replanner.errors import InvalidInputError
 from replanner.planning import GoalInvalid, NoSolution, Planner, PoseGoal, StartInvalid, UnknownPlanner
 from replanner.planning.ik import IKError, solve_ik
+from replanner.planning.shortcut import shortcut
 from replanner.world.collision import CollisionChecker
 from replanner.world.geometry import Box
 from replanner.world.scene import World
@@ -387,30 +388,23 @@ def test_fcl_checks_every_configuration_of_a_returned_path_at_path_resolution(wa
         assert len(Q) > 2 and all(tuple(q) in checked for q in Q)
 
 
-def test_shortcutting_asks_about_each_straight_motion_once(wall_world, panda_cfg, monkeypatch):
+def test_shortcutting_asks_about_each_straight_motion_once(planner, wall_world):
     """The second waypoint skip after the random shortcuts asks again of waypoints the first one kept: those answers
     are remembered, so no motion is checked twice, and the path is the one every motion checked anew gives."""
-    planner = Planner.from_config(wall_world[1], panda_cfg.planning, seed=7)
+    checker = wall_world[1]
     path = planner.plan(A, B, deadline=5.0).path
     t = np.linspace(0.0, 1.0, 5)[:-1, None]
     raw = np.vstack([a + t * (b - a) for a, b in zip(path[:-1], path[1:])] + [path[-1:]])  # a found path, 4x denser
-    asked: list[tuple] = []
-    real = planner._motion_ok
+    paths, asked = [], []
+    for remember in (True, False):
+        seen: list[tuple[bytes, bytes]] = []
 
-    def counted(a, b, resolution=None):
-        asked.append((a.tobytes(), b.tobytes(), resolution))
-        return real(a, b, resolution)
+        def motion_ok(a, b, seen=seen):
+            seen.append((a.tobytes(), b.tobytes()))
+            return checker.path_valid(np.array([a, b]), 0.05)
 
-    monkeypatch.setattr(planner, "_motion_ok", counted)
-    planner._rng = np.random.default_rng(0)
-    W = planner.shortcut(raw, resolution=0.05)
-    assert len(asked) == len(set(asked)) > 0
-    skip = Planner._skip_waypoints
-
-    def anew(W, t_end=math.inf, res=None, known=None):  # every motion checked again
-        return skip(planner, W, t_end, res)
-
-    monkeypatch.setattr(planner, "_skip_waypoints", anew)
-    planner._rng = np.random.default_rng(0)
-    np.testing.assert_array_equal(W, planner.shortcut(raw, resolution=0.05))
-    assert wall_world[1].check_path(W).valid
+        paths.append(shortcut(raw, motion_ok, np.random.default_rng(0), tries=10, remember=remember))
+        asked.append(seen)
+    assert len(asked[0]) == len(set(asked[0])) < len(asked[1])  # without remembering, some are asked twice
+    np.testing.assert_array_equal(paths[0], paths[1])
+    assert len(paths[0]) < len(raw) and checker.check_path(paths[0]).valid

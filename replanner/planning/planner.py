@@ -27,6 +27,7 @@ from ..world.layered import FastChecker
 from ..world.paddings import Paddings
 from ..world.transforms import make_transform
 from .ik import IKError, solve_ik
+from .shortcut import shortcut
 from .types import (
     GoalInvalid,
     JointGoal,
@@ -452,58 +453,16 @@ class Planner:
 
     # ------------------------------------------------------------------ simplification
     def shortcut(self, W: np.ndarray, t_end: float = math.inf, resolution: float | None = None) -> np.ndarray:
-        """Fewer, shorter segments: skip waypoints, try up to `shortcut_tries` random shortcuts, skip again; each
-        shortcut checked every `resolution` [m] (None: the checker's path resolution).
+        """Fewer, shorter segments (planning/shortcut.py): up to `shortcut_tries` random shortcuts between waypoint
+        skips, each checked every `resolution` [m] (None: the checker's path resolution).
 
         Bounded by counts; `t_end` (a time of `clock`, the plan's deadline) may only cut it short.
         """
-        known: dict[tuple[bytes, bytes], bool] = {}  # the second skip asks again of waypoints the first one kept
-        W = self._skip_waypoints(W, t_end, resolution, known)
-        misses = tries = 0
-        while tries < self.shortcut_tries and len(W) > 2 and misses < 6 and self.clock() < t_end:
-            tries += 1
-            seg = np.linalg.norm(np.diff(W, axis=0), axis=1)
-            acc = np.concatenate([[0.0], np.cumsum(seg)])
-            a, b = np.sort(self._rng.uniform(0, acc[-1], 2))
-            ia = min(int(np.searchsorted(acc, a, side="right") - 1), len(seg) - 1)
-            ib = min(int(np.searchsorted(acc, b, side="right") - 1), len(seg) - 1)
-            if ia == ib:
-                continue
-            pa = W[ia] + (a - acc[ia]) / seg[ia] * (W[ia + 1] - W[ia])
-            pb = W[ib] + (b - acc[ib]) / seg[ib] * (W[ib + 1] - W[ib])
-            if self._motion_ok(pa, pb, resolution):
-                W = np.vstack([W[: ia + 1], pa, pb, W[ib + 1 :]])
-                misses = 0
-            else:
-                misses += 1
-        return self._skip_waypoints(W, t_end, resolution, known)
-
-    def _skip_waypoints(
-        self, W: np.ndarray, t_end: float = math.inf, resolution: float | None = None, known: dict | None = None
-    ) -> np.ndarray:
-        """From each kept waypoint, go straight to the farthest later one that is reachable in a straight line.
-
-        Past `t_end` (the plan's deadline) the rest of the path is kept as it is: valid, only longer. `known`: the
-        verdicts of straight motions already checked at this resolution, by their ends' bytes (read and filled)."""
-        keep = np.concatenate([[True], np.linalg.norm(np.diff(W, axis=0), axis=1) > 1e-9])
-        W = W[keep]
-        known = {} if known is None else known
-
-        def reachable(a: np.ndarray, b: np.ndarray) -> bool:
-            key = (a.tobytes(), b.tobytes())
-            ok = known.get(key)
-            if ok is None:
-                ok = known[key] = self._motion_ok(a, b, resolution)
-            return ok
-
-        out, i = [W[0]], 0
-        while i < len(W) - 1:
-            if self.clock() >= t_end:
-                out.extend(W[i + 1 :])
-                break
-            j = len(W) - 1
-            while j > i + 1 and not reachable(W[i], W[j]):
-                j -= 1
-            out.append(W[j])
-            i = j
-        return np.array(out)
+        return shortcut(
+            W,
+            lambda a, b: self._motion_ok(a, b, resolution),
+            self._rng,
+            tries=self.shortcut_tries,
+            t_end=t_end,
+            clock=self.clock,
+        )
