@@ -24,7 +24,7 @@ class Holding:
             # everything that can block, nothing remembered, people's distance fresh: no resume into a blocked path
             final = self.monitor.check_path(view, fresh=True).blocking
             speed = self.monitor.check_speed(view)  # and not one the next check holds again (a hold-resume flap)
-            if final is None and not speed.blocking and speed.speed_factor >= self.cfg.speed_separation.min_speed_share:
+            if final is None and self._speed_refusal(speed) is None:
                 self.moves.resume()
                 self.resume(reason=f"the path was clear for {self._clear_count} checks")
                 return
@@ -36,17 +36,18 @@ class Holding:
             self._hold_planned = now
             self._launch(JobPurpose.HOLD, self._deadline())
 
-    def _start_blocked(self, traj, now: float) -> str | None:
-        """Why a new path from rest may not start now (speed and separation would stop it at once), or None."""
-        q = self.measured()
-        if q is None:
-            return None
-        speed = self.monitor.check_start(traj, now, q)
+    def _speed_refusal(self, speed) -> str | None:
+        """Why the speed checks' report `speed` stops the arm (too close even at rest, or too slow), or None."""
         if speed.blocking is not None:
             return speed.blocking.reason
         if speed.speed_factor < self.cfg.speed_separation.min_speed_share:
             return f"speed and separation allow {speed.speed_factor:.0%} of the speed"
         return None
+
+    def _start_blocked(self, traj, now: float) -> str | None:
+        """Why a new path from rest may not start now (speed and separation would stop it at once), or None."""
+        q = self.measured()
+        return None if q is None else self._speed_refusal(self.monitor.check_start(traj, now, q))
 
     def _hold_wait(self) -> float:  # replan goes round as soon as the arm stands; stop-and-wait waits first
         if self.cfg.reaction is Reaction.REFLEX:  # the reflex alone never plans: it waits for its own path
