@@ -10,6 +10,7 @@ import pytest
 from replanner.errors import ConfigError, InvalidInputError
 from replanner.sections import TransportConfig
 from replanner.transport import messages as m
+from replanner.transport import trajectory_cdr
 from replanner.transport.keys import KEYS, Keys
 from replanner.transport.session import make_config
 
@@ -124,3 +125,59 @@ def test_fast_joint_state_encoder_writes_rosbags_bytes():
             assert m.encode_joint_state(t, names, p, frame="base") == m.encode_joint_state_rosbags(
                 t, names, p, None, "base"
             )
+
+
+def test_bulk_trajectory_codec_writes_and_reads_rosbags_bytes():
+    """A slowed trajectory has thousands of points: written and read in bulk, the bytes must be rosbags' own."""
+    rng = np.random.default_rng(5)
+    ts = m.typestore()
+    for n_pts in (1, 2, 3, 250):
+        for dof in (1, 6, 7):
+            names = [f"joint_{'x' * int(rng.integers(0, 6))}{i}" for i in range(dof)]
+            frame = "f" * int(rng.integers(0, 9))
+            t = np.sort(rng.uniform(0.0, 30.0, n_pts))
+            t[0] = 2.9999999999999996  # the nearest nanosecond is 3 s, not 2 s and 1e9 ns
+            t = np.sort(t)
+            q, qd, qdd = (rng.normal(size=(n_pts, dof)) for _ in range(3))
+            start = float(rng.uniform(0, 2e9))
+            blob = m.encode_trajectory(start, names, t, q, qd, qdd, frame)
+            assert blob == trajectory_cdr.encode_rosbags(start, names, t, q, qd, qdd, frame)
+            ref = ts.deserialize_cdr(blob, m.JOINT_TRAJECTORY)
+            got_start, got_t, got_q, got_qd, got_qdd = m.decode_trajectory(blob, names[::-1])
+            assert got_start == ref.header.stamp.sec + ref.header.stamp.nanosec * 1e-9
+            ref_t = [p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in ref.points]
+            assert np.array_equal(got_t, ref_t) and np.abs(got_t - t).max() < 1e-9
+            for got, sent in ((got_q, q), (got_qd, qd), (got_qdd, qdd)):
+                assert np.array_equal(got, sent[:, ::-1])
+
+
+def test_trajectories_in_other_layouts_are_read_by_rosbags_or_refused_with_the_field():
+    ts = m.typestore()
+    P, D = ts.types["trajectory_msgs/msg/JointTrajectoryPoint"], ts.types["builtin_interfaces/msg/Duration"]
+
+    def blob(points):
+        msg = ts.types[m.JOINT_TRAJECTORY](header=m.make_header(4.0, ""), joint_names=list(NAMES), points=points)
+        return bytes(ts.serialize_cdr(msg, m.JOINT_TRAJECTORY))
+
+    def point(k, vel=True, effort=0, n=7):
+        z = np.zeros(0)
+        return P(
+            positions=np.full(n, float(k)),
+            velocities=np.full(n, 0.5) if vel else z,
+            accelerations=z,
+            effort=np.ones(effort),
+            time_from_start=D(sec=k, nanosec=0),
+        )
+
+    # another client's trajectory: no accelerations, efforts, a point without velocities
+    start, t, q, qd, qdd = m.decode_trajectory(blob([point(0, effort=7), point(1, vel=False), point(2)]), NAMES)
+    assert start == 4.0 and np.array_equal(t, [0, 1, 2]) and np.array_equal(q[:, 3], [0, 1, 2])
+    assert np.array_equal(qd[:, 0], [0.5, 0.0, 0.5]) and not qdd.any()
+    with pytest.raises(m.DecodeError, match="every point needs 7 positions"):
+        m.decode_trajectory(blob([point(0), point(1, n=6)]), NAMES)
+    with pytest.raises(m.DecodeError, match="no points"):
+        m.decode_trajectory(blob([]), NAMES)
+    good = m.encode_trajectory(1.0, NAMES, np.arange(5) * 0.1, *(np.zeros((5, 7)),) * 3)
+    for cut in (len(good) - 1, len(good) - 200, 40, 3):
+        with pytest.raises(m.DecodeError, match="not a CDR-encoded trajectory_msgs/msg/JointTrajectory"):
+            m.decode_trajectory(good[:cut], NAMES)

@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from ..errors import InvalidInputError
 from ..world.geometry import Box, Cylinder, Mesh, Sphere
 from ..world.transforms import make_transform
+from . import trajectory_cdr
 
 
 class DecodeError(InvalidInputError):
@@ -354,44 +355,51 @@ def decode_joint_state(data: bytes, joint_names, frames=None) -> tuple[float, np
 
 
 def encode_trajectory(start: float, names, times, q, qd, qdd, frame: str = "") -> bytes:
-    ts = typestore()
-    P = ts.types["trajectory_msgs/msg/JointTrajectoryPoint"]
-    D = ts.types["builtin_interfaces/msg/Duration"]
-    points = []
-    for t, a, b, c in zip(times, q, qd, qdd):
-        sec = int(math.floor(t))
-        points.append(
-            P(
-                positions=np.asarray(a, np.float64),
-                velocities=np.asarray(b, np.float64),
-                accelerations=np.asarray(c, np.float64),
-                effort=np.zeros(0, np.float64),
-                time_from_start=D(sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000),
-            )
-        )
-    msg = ts.types[JOINT_TRAJECTORY](header=make_header(start, frame), joint_names=list(names), points=points)
-    return bytes(ts.serialize_cdr(msg, JOINT_TRAJECTORY))
+    """CDR bytes of a trajectory_msgs/JointTrajectory starting at `start` [s]: rosbags' bytes, written in bulk."""
+    return trajectory_cdr.encode(start, names, times, q, qd, qdd, frame)
 
 
 def decode_trajectory(data: bytes, joint_names):
     """(start [s], times (n,), q, qd, qdd (n, dof)) in `joint_names` order."""
-    msg = _decode(data, JOINT_TRAJECTORY, "trajectory")
-    names = list(msg.joint_names)
+    fast = trajectory_cdr.decode(bytes(data))
+    if fast is not None:
+        start, names, times, q, qd, qdd = fast
+    else:  # any other layout (effort, missing arrays) or foreign bytes: rosbags reads it or says what is wrong
+        start, names, times, q, qd, qdd = _decode_trajectory_rosbags(data)
     missing = [n for n in joint_names if n not in names]
     if missing:
         raise DecodeError(f"trajectory: joints {missing} are missing; names given: {names}")
-    if not msg.points:
+    if not len(times):
         raise DecodeError("trajectory: no points")
     idx = [names.index(n) for n in joint_names]
-    times = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points])
-    q = np.array([np.asarray(p.positions)[idx] for p in msg.points])
-    qd = np.array([np.asarray(p.velocities)[idx] if len(p.velocities) else np.zeros(len(idx)) for p in msg.points])
-    qdd = np.array(
-        [np.asarray(p.accelerations)[idx] if len(p.accelerations) else np.zeros(len(idx)) for p in msg.points]
-    )
+    q, qd, qdd = q[:, idx], qd[:, idx], qdd[:, idx]
     if np.any(np.diff(times) <= 0) or not np.all(np.isfinite(q)):
         raise DecodeError("trajectory: times must increase and positions be finite")
-    return _time_of(msg.header.stamp), times, q, qd, qdd
+    return start, times, q, qd, qdd
+
+
+def _decode_trajectory_rosbags(data: bytes):
+    msg = _decode(data, JOINT_TRAJECTORY, "trajectory")
+    names = list(msg.joint_names)
+    d = len(names)
+    if not msg.points:
+        return _time_of(msg.header.stamp), names, np.zeros(0), *(np.zeros((0, d)) for _ in range(3))
+
+    def arr(field: str, fill: bool) -> np.ndarray:
+        rows = [np.asarray(getattr(p, field), np.float64) for p in msg.points]
+        if any(len(r) != d and not (fill and len(r) == 0) for r in rows):
+            raise DecodeError(f"trajectory: every point needs {d} {field} (one per joint name)")
+        return np.array([r if len(r) else np.zeros(d) for r in rows])
+
+    times = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points])
+    return (
+        _time_of(msg.header.stamp),
+        names,
+        times,
+        arr("positions", False),
+        arr("velocities", True),
+        arr("accelerations", True),
+    )
 
 
 def encode_cloud(stamp: float, points: np.ndarray, frame: str = "", width: int | None = None, height: int = 1) -> bytes:
