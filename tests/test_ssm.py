@@ -168,3 +168,23 @@ def test_replans_land_later_when_answers_have_been_arriving_late():
     assert acc.landing_margin(3.3, 0.05) == pytest.approx(0.30)
     assert acc.report(3.3)["plan_overrun"]["n"] == 51
     assert acc.landing_margin(20.0, 0.05) == 0.05  # out of the window: back to the configured margin
+
+
+def test_a_new_map_is_checked_at_once_whatever_the_check_rate(panda_cfg, panda):
+    """A map waiting for the next periodic check would add up to a check period to T_r."""
+    cfg = panda_cfg.override(
+        {
+            "perception": {"sensors": [{**panda_cfg.perception.sensors[0].model_dump(), "width": 160, "height": 120}]},
+            "controller": {"check_rate_hz": 20.0},  # a check every 50 ms: 10 steps of the sim
+        }
+    )
+    sim = SteppedSim(cfg, [table()], robot=panda, seed=1, camera_rate=7.0)  # frames between the periodic checks
+    try:
+        h = sim.controller.submit(Goal.joints("across", B, velocity_scale=0.3))
+        sim.run_until(lambda: h.result is not None, 30, "the motion")
+        report = sim.controller.latency.report(sim.t)
+        assert h.result.status == GoalStatus.SUCCEEDED, h.result
+        assert report["map_to_check"]["n"] >= 10 and report["map_to_check"]["max"] <= sim.dt + 1e-9
+        assert report["check_gap"]["max"] >= 0.05 - 1e-9  # the periodic checks still come at their rate
+    finally:
+        sim.close()

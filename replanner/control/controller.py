@@ -38,6 +38,7 @@ from .states import State, edges
 from .swerves import Swerves
 
 log = logging.getLogger(__name__)
+MAP_CHECK_GAP = 0.002  # [s] a new map is checked this soon after the last check, whatever the check rate
 
 
 class Controller(Holding):
@@ -94,7 +95,7 @@ class Controller(Holding):
         self._handle: GoalHandle | None = None
         self.liveness = Liveness(self.sensors, cfg.joint_state_timeout, cfg.sensor_timeout)
         self.latency = latency or LatencyAccount()
-        self._dirty, self._last_check = False, -math.inf
+        self._dirty, self._new_map, self._last_check = False, False, -math.inf
         self._check_gap = 0.0  # recent gap between checks, decaying [s]
         self._retry_at: float | None = None
         self._clear_count, self._clear_since = 0, 0.0  # checks in a row the path was clear, since when
@@ -180,11 +181,13 @@ class Controller(Holding):
 
     def _tick(self) -> None:
         now = self.clock()
-        if self._dirty and now - self._last_check >= 1.0 / self.cfg.check_rate_hz:
+        period = 1.0 / self.cfg.check_rate_hz  # a new map is looked at at once: a wait would add to T_r
+        if self._dirty and now - self._last_check >= (min(period, MAP_CHECK_GAP) if self._new_map else period):
             self._dirty = False
             gap = now - self._last_check if self._last_check > -math.inf else 0.0
-            self._check_gap = min(max(gap, 0.9 * self._check_gap), 0.25)  # a stall is the watchdogs' case
-            self._last_check = now
+            if not (self._new_map and gap < period):  # the next check may still be a whole period away
+                self._check_gap = min(max(gap, 0.9 * self._check_gap), 0.25)  # a stall is the watchdogs' case
+            self._new_map, self._last_check = False, now
             sent, watching = self.moves.sent, self.state not in (State.WAITING.value, State.PLANNING.value)
             self._check(now)
             done = self.clock()
@@ -202,7 +205,7 @@ class Controller(Holding):
             for name, sup in self.checker.world.release_support(data.position, padding):
                 log.info("%s has left %s: it is checked against it again", name, sup)
         elif kind is Input.MAP:
-            self._dirty = True
+            self._dirty = self._new_map = True
         elif kind is Input.GOAL:
             self._start_goal(data)
         elif kind is Input.CANCEL:
