@@ -15,6 +15,7 @@ from ..errors import InvalidInputError
 from ..world.geometry import Box, Cylinder, Mesh, Sphere
 from ..world.transforms import make_transform
 from . import trajectory_cdr
+from .cdr import CDR_LE, JOINT_STATE, JOINT_TRAJECTORY, POINT_CLOUD2, make_header, split_time, typestore
 
 
 class DecodeError(InvalidInputError):
@@ -242,29 +243,6 @@ def _default(o):
 
 
 # ------------------------------------------------------------------------------------- ROS 2 CDR
-@lru_cache(maxsize=1)
-def typestore():
-    from rosbags.typesys import Stores, get_typestore
-
-    return get_typestore(Stores.ROS2_HUMBLE)
-
-
-JOINT_STATE = "sensor_msgs/msg/JointState"
-JOINT_TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
-POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
-
-
-def _stamp(t: float):
-    ts = typestore()
-    sec = int(math.floor(t))
-    return ts.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000)
-
-
-def make_header(t: float, frame: str):
-    """A std_msgs/Header at time t [s] in `frame`."""
-    return typestore().types["std_msgs/msg/Header"](stamp=_stamp(t), frame_id=frame)
-
-
 def _time_of(stamp) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
@@ -285,8 +263,7 @@ def encode_joint_state(stamp: float, names, position, velocity=None, frame: str 
         return encode_joint_state_rosbags(stamp, names, pos, vel, frame)  # rosbags says what is wrong
     blob, pos_at, vel_at = _joint_state_layout(names, frame, vel is not None)
     out = bytearray(blob)
-    sec = int(math.floor(stamp))
-    struct.pack_into("<iI", out, 4, sec, int(round((stamp - sec) * 1e9)) % 1_000_000_000)
+    struct.pack_into("<iI", out, 4, *split_time(stamp))
     out[pos_at : pos_at + 8 * len(names)] = pos.astype("<f8").tobytes()
     if vel is not None:
         out[vel_at : vel_at + 8 * len(names)] = vel.astype("<f8").tobytes()
@@ -299,7 +276,7 @@ def _joint_state_layout(names: tuple[str, ...], frame: str, with_velocity: bool)
     n = len(names)
     mark_p, mark_v = np.full(n, 1.25e-300), np.full(n, -3.5e-300)  # values no header byte run can imitate
     blob = encode_joint_state_rosbags(0.0, names, mark_p, mark_v if with_velocity else None, frame)
-    if blob[:4] != b"\x00\x01\x00\x00":
+    if blob[:4] != CDR_LE:
         raise RuntimeError("rosbags no longer writes little-endian CDR: the fast JointState encoder needs updating")
     return blob, blob.find(mark_p.astype("<f8").tobytes()), blob.find(mark_v.astype("<f8").tobytes())
 
