@@ -7,6 +7,7 @@ import pybullet as pb
 
 from replanner.bench.scenes import add_table, clutter_map
 from replanner.world.collision import CollisionChecker
+from replanner.world.convex_pass import decide_batch
 from replanner.world.geometry import Box, Cylinder, Sphere, sample_surface
 from replanner.world.layered import FastChecker
 from replanner.world.scene import World
@@ -85,17 +86,22 @@ def test_what_the_layer_calls_free_fcl_and_pybullet_call_free(profile):
     assert pb.isConnected(oracle.cid) == 0
 
 
-def test_anchored_motion_checks_give_every_configurations_own_verdict(profile):
-    """A motion's anchors, checked with a wider margin, clear their neighbours unchecked: the verdict and the
-    configurations left to FCL must be those of checking each configuration on its own."""
+def _cluttered(profile, seed: int):
+    """(robot, rng, FastChecker) of a table, a shelf, a post and 5,000 voxels of clutter."""
     cfg, robot = profile
-    rng = np.random.default_rng(11)
+    rng = np.random.default_rng(seed)
     world = World(robot)
     add_table(world)
     world.add("shelf", Box(size=(0.3, 0.6, 0.02)), make_transform((0.55, 0.0, 0.45), (0, 0, 0, 1)))
     world.add("post", Cylinder(radius=0.05, length=0.8), make_transform((0.45, 0.35, 0.4), (0, 0, 0, 1)))
     world.set_occupancy(clutter_map(rng, 5_000))
-    fast = FastChecker(CollisionChecker.from_config(robot, world, cfg.collision))
+    return robot, rng, FastChecker(CollisionChecker.from_config(robot, world, cfg.collision))
+
+
+def test_anchored_motion_checks_give_every_configurations_own_verdict(profile):
+    """A motion's anchors, checked with a wider margin, clear their neighbours unchecked: the verdict and the
+    configurations left to FCL must be those of checking each configuration on its own."""
+    robot, rng, fast = _cluttered(profile, 11)
     anchored = fast.motion()
     each = anchored.with_ahead(0.0)
     A = robot.random_q(rng, 600)
@@ -143,6 +149,33 @@ def test_a_motion_check_gives_the_layers_verdicts_on_its_configurations_every_ei
         assert v == 1 and list(unsure) == [k for k in order if verdict[k] == UNSURE]
         kinds.add("unsure" if len(unsure) else "free")
     assert kinds == {"free", "unsure", "contact"}
+
+
+def test_a_motion_decided_in_one_call_is_the_spheres_then_the_convex_pass(profile):
+    """`BoundMotion.decided` runs the convex pass inside the motion's compiled call: its verdict and the
+    configurations it leaves to FCL are those of the sphere pass followed by `decide_batch`, call by call."""
+    robot, rng, fast = _cluttered(profile, 13)
+    motion, (layer, volume, convex) = fast.motion(), fast.passes()
+    A = robot.random_q(rng, 400)
+    B = np.clip(A + rng.normal(0, 0.3, A.shape), robot.limits.lower, robot.limits.upper)
+    kinds = set()
+    for a, b in zip(A, B):
+        v, rest = motion.decided(a, b, 0.01)
+        v0, unsure, steps = motion(a, b, 0.01)
+        if v0 < 0 or not len(unsure):
+            assert (v, len(rest)) == (v0, 0)
+            kinds.add("spheres")
+            continue
+        Q = a + (unsure / steps)[:, None] * (b - a)
+        Q[unsure == steps] = b
+        verdict = decide_batch(convex, layer, robot.frames(Q), np.arange(len(Q)), volume, stop=True)
+        if (verdict == CONTACT).any():
+            assert (v, len(rest)) == (-1, 0)
+            kinds.add("convex contact")
+        else:
+            assert v == 1 and np.array_equal(rest, Q[verdict == UNSURE])
+            kinds.add("convex free" if not len(rest) else "left to FCL")
+    assert kinds == {"spheres", "convex contact", "convex free", "left to FCL"}
 
 
 def test_the_coarse_blocks_never_hide_a_voxel_a_box_meets():

@@ -50,8 +50,11 @@ class FastChecker:
         return self._layers()[5]
 
     def _layers(self) -> tuple:
-        snap, scene, _, _ = self.checker._current()
         c = self._cache
+        snap = self.checker.world.snapshot()  # asked thousands of times a plan: the scene only when it changed
+        if c is not None and c[0] is snap.version and c[1] is snap.occupancy:
+            return c
+        snap, scene, _, _ = self.checker._current()
         if c is None or c[0] is not snap.version or c[1] is not snap.occupancy:
             if c is None or c[0] != snap.version:
                 robot = self.checker.robot
@@ -61,7 +64,9 @@ class FastChecker:
                 layer, convex = c[2], c[4]
             vol = VoxelVolume.of(snap.occupancy) if c is None or c[1] is not snap.occupancy else c[3]
             limits = (self._lo, self._hi) if self.checker.check_limits else (None, None)
-            motion = BoundMotion(self.checker.robot, layer, vol, *limits, scene.reach)
+            motion = BoundMotion(
+                self.checker.robot, layer, vol, *limits, scene.reach, convex=convex if self.convex else None
+            )
             c = self._cache = (snap.version, snap.occupancy, layer, vol, convex, motion)
         return c
 
@@ -111,7 +116,10 @@ class FastChecker:
         """The straight motion a -> b (float64 (dof,), finite: a planner's own states) checked every `resolution`
         [m] (0: a alone): the spheres in one compiled call, then the convex pass and FCL on what is left."""
         c = self._layers()
-        v, unsure, steps = c[5](a, b, float(resolution))  # an int would compile another specialization
+        if self.convex:  # spheres and the convex pass in one compiled call; FCL for the rest
+            v, rest = c[5].decided(a, b, float(resolution))  # an int would compile another specialization
+            return v > 0 and (not len(rest) or bool(self.checker._first_invalid(rest, True)[0].all()))
+        v, unsure, steps = c[5](a, b, float(resolution))
         if v < 0:
             return False
         if not len(unsure):

@@ -2,7 +2,7 @@
 interpolate (collision.interpolate's, same count), classified in turn, every 8th first, stopping at the first certain
 contact. Anchors checked with a wider margin clear their neighbours without a check of their own (a plan's motions
 run at a few millimetres' resolution). The planner checks thousands of motions a plan; this keeps Python out of each
-one."""
+one, the convex pass on what the spheres leave included (`BoundMotion.decided`)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,10 @@ import copy
 import numba
 import numpy as np
 
+from .convex_pass import ConvexPass, _decide_all
+from .kernels import frames_of
 from .selfcollision import may_collide_row
-from .sphere_layer import SphereScene, VoxelVolume, verdicts
+from .sphere_layer import CONTACT, UNSURE, SphereScene, VoxelVolume, verdicts
 
 STRIDE = 8  # every 8th configuration first: a contact is usually found early
 AHEAD = 0.02  # [m] the margin of an anchor's check: free with it, its neighbours within that travel are too
@@ -30,7 +32,10 @@ class BoundMotion:
         ahead: [m] the margin of the anchors' checks (0: every configuration is checked on its own).
     """
 
-    def __init__(self, robot, layer: SphereScene, vol: VoxelVolume, lo, hi, reach, ahead: float = AHEAD):
+    def __init__(
+        self, robot, layer: SphereScene, vol: VoxelVolume, lo, hi, reach, ahead: float = AHEAD,
+        convex: ConvexPass | None = None,
+    ):  # fmt: skip
         limits = lo is not None
         dof = robot.dof
         self.ahead = float(ahead)
@@ -39,6 +44,10 @@ class BoundMotion:
             np.asarray(hi if limits else np.full(dof, np.inf), np.float64),
             np.ascontiguousarray(reach, dtype=np.float64), layer.reach, layer.env_pad, layer.map_pad, layer.self_pad,
             *layer.kernel_args(vol),
+        )  # fmt: skip
+        cp = convex
+        self.convex = None if cp is None else (
+            cp.P, cp.D, cp.pfirst, cp.dfirst, cp.supported, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b
         )  # fmt: skip
 
     def with_ahead(self, ahead: float) -> BoundMotion:
@@ -51,19 +60,63 @@ class BoundMotion:
         """(verdict, unsure, steps) of the motion a -> b (float64 (dof,)) checked every `resolution` [m]: verdict
         -1 if a configuration is in contact for certain, OUTSIDE if an end is outside the limits, else 1 with the
         indices k of the configurations a + k / steps (b - a) the layer could not decide. resolution 0: a alone."""
-        return _checked_motion(a, b, resolution, self.ahead, *self.args)
+        v, unsure, steps, _ = _sphere_motion(a, b, resolution, self.ahead, *self.args)
+        return v, unsure, steps
+
+    def decided(self, a: np.ndarray, b: np.ndarray, resolution: float) -> tuple[int, np.ndarray]:
+        """(verdict, rest) of the same motion with the convex pass (world/convex_pass.py, given at construction) on
+        what the spheres left, in the same compiled call: verdict as `__call__`'s, and rest (r, dof) the
+        configurations neither decided, FCL's to check. The verdicts of `__call__` then `decide_batch`."""
+        return _decided_motion(a, b, resolution, self.ahead, *self.args, *self.convex)
 
 
 @numba.njit(cache=True, nogil=True)
-def _checked_motion(
+def _decided_motion(
+    a, b, resolution, ahead, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints, parents,
+    tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask,
+    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b,
+    P, D, pfirst, dfirst, supported, ob_R, ob_t, cpair_a, cpair_b,
+):  # fmt: skip
+    v, unsure, steps, Q = _sphere_motion(
+        a, b, resolution, ahead, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
+        parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
+        env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a,
+        pair_b,
+    )  # fmt: skip
+    u = unsure.shape[0]
+    if v != 1 or u == 0:
+        return v, Q[:0]
+    frames = np.empty((u, a.shape[0] + 1, 4, 4))
+    for i in range(u):
+        frames_of(Q, unsure[i], F, prismatic, joints, parents, frames, i)
+    out = np.zeros(u, np.int8)
+    _decide_all(
+        frames, np.arange(u), out, True, P, D, pfirst, dfirst, supported, env_pad, self_pad, ob_R, ob_t, cpair_a,
+        cpair_b, local, rad, first, ball_slot, ball_c, ball_r, gf, map_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id,
+        ob_exact, octree_mask, sat, csat, key_min, inv_res,
+    )  # fmt: skip
+    rest = np.empty((u, a.shape[0]))
+    r = 0
+    for i in range(u):
+        if out[i] == CONTACT:
+            return -1, Q[:0]
+        if out[i] == UNSURE:
+            rest[r] = Q[unsure[i]]
+            r += 1
+    return 1, rest[:r]
+
+
+@numba.njit(cache=True, nogil=True)
+def _sphere_motion(
     a, b, resolution, ahead, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints, parents,
     tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask,
     ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b,
 ):  # fmt: skip
+    """(verdict, unsure, steps, Q): BoundMotion's answer and the motion's configurations Q (steps + 1, dof)."""
     travel = 0.0
     for j in range(a.shape[0]):
         if not (lo[j] <= a[j] <= hi[j] and lo[j] <= b[j] <= hi[j]):
-            return OUTSIDE, np.empty(0, np.int64), 0
+            return OUTSIDE, np.empty(0, np.int64), 0, np.empty((0, a.shape[0]))
         travel += abs(b[j] - a[j]) * reach[j]
     steps = 0 if resolution <= 0.0 else max(1, np.int64(np.ceil(travel / resolution)))
     Q = np.empty((steps + 1, a.shape[0]))
@@ -87,7 +140,7 @@ def _checked_motion(
             env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res,
             pair_a, pair_b, v,
         ) >= 0:  # fmt: skip
-            return -1, np.empty(0, np.int64), steps  # an inner ball's contact: no padding takes part in it
+            return -1, np.empty(0, np.int64), steps, Q  # an inner ball's contact: no padding takes part in it
         for k in anchors:
             if v[k] == 1:
                 known[max(k - J, 0) : k + J + 1] = True
@@ -104,7 +157,7 @@ def _checked_motion(
         local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind, ob_inv,
         ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, v,
     ) >= 0:  # fmt: skip
-        return -1, np.empty(0, np.int64), steps
+        return -1, np.empty(0, np.int64), steps, Q
     unsure = np.empty(steps + 1, np.int64)
     u = 0
     for k in seq:
@@ -112,4 +165,4 @@ def _checked_motion(
         if (v[k] == 0 and not known[k]) or (known[k] and tab_i.shape[0] and may_collide_row(Q, k, tab_i, tab_f, table)):
             unsure[u] = k
             u += 1
-    return 1, unsure[:u], steps
+    return 1, unsure[:u], steps, Q
