@@ -46,7 +46,7 @@ class BoundMotion:
             *layer.kernel_args(vol),
         )  # fmt: skip
         cp = convex
-        self.convex = None if cp is None else (
+        self.decided_args = None if cp is None else self.args + (
             cp.P, cp.D, cp.pfirst, cp.dfirst, cp.supported, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b
         )  # fmt: skip
 
@@ -67,7 +67,7 @@ class BoundMotion:
         """(verdict, rest) of the same motion with the convex pass (world/convex_pass.py, given at construction) on
         what the spheres left, in the same compiled call: verdict as `__call__`'s, and rest (r, dof) the
         configurations neither decided, FCL's to check. The verdicts of `__call__` then `decide_batch`."""
-        return _decided_motion(a, b, resolution, self.ahead, *self.args, *self.convex)
+        return _decided_motion(a, b, resolution, self.ahead, *self.decided_args)
 
 
 @numba.njit(cache=True, nogil=True)
