@@ -7,7 +7,7 @@ import numpy as np
 
 from .convex_pass import ConvexPass, decide_batch
 from .motion_pass import BoundMotion
-from .sphere_layer import CONTACT, FREE, UNSURE, SphereScene, VoxelVolume
+from .sphere_layer import FREE, UNSURE, SphereScene, VoxelVolume
 
 
 class FastChecker:
@@ -54,20 +54,19 @@ class FastChecker:
         snap = self.checker.world.snapshot()  # asked thousands of times a plan: the scene only when it changed
         if c is not None and c[0] is snap.version and c[1] is snap.occupancy:
             return c
-        snap, scene, _, _ = self.checker._current()
-        if c is None or c[0] is not snap.version or c[1] is not snap.occupancy:
-            if c is None or c[0] != snap.version:
-                robot = self.checker.robot
-                layer = SphereScene(robot, scene, snap, self.checker.padding, self.checker.map_padding)
-                convex = ConvexPass(robot, scene, layer)
-            else:
-                layer, convex = c[2], c[4]
-            vol = VoxelVolume.of(snap.occupancy) if c is None or c[1] is not snap.occupancy else c[3]
-            limits = (self._lo, self._hi) if self.checker.check_limits else (None, None)
-            motion = BoundMotion(
-                self.checker.robot, layer, vol, *limits, scene.reach, convex=convex if self.convex else None
-            )
-            c = self._cache = (snap.version, snap.occupancy, layer, vol, convex, motion)
+        scene = self.checker._scene_of(snap)
+        if c is None or c[0] != snap.version:
+            robot = self.checker.robot
+            layer = SphereScene(robot, scene, snap, self.checker.padding, self.checker.map_padding)
+            convex = ConvexPass(robot, scene, layer)
+        else:
+            layer, convex = c[2], c[4]
+        vol = VoxelVolume.of(snap.occupancy) if c is None or c[1] is not snap.occupancy else c[3]
+        limits = (self._lo, self._hi) if self.checker.check_limits else (None, None)
+        motion = BoundMotion(
+            self.checker.robot, layer, vol, *limits, scene.reach, convex=convex if self.convex else None
+        )
+        c = self._cache = (snap.version, snap.occupancy, layer, vol, convex, motion)
         return c
 
     def _rows(self, Q) -> np.ndarray:
@@ -75,11 +74,6 @@ class FastChecker:
         if Q.ndim != 2 or Q.shape[1] != len(self._lo) or not np.isfinite(Q).all():
             Q = self.checker.robot.check_q(Q)  # raises with the reason
         return Q
-
-    def _second(self, c, frames, verdict, which: np.ndarray, stop: bool = False) -> None:
-        """The convex pass on configurations `which` (unsure after the spheres), in place; `stop`: at a contact."""
-        if self.convex and len(which):
-            verdict[which] = decide_batch(c[4], c[2], frames, which, c[3], stop)
 
     def is_valid_batch(self, Q) -> np.ndarray:
         """Validity (N,) of configurations Q (N, dof), as `checker.is_valid_batch` says."""
@@ -116,22 +110,13 @@ class FastChecker:
         """The straight motion a -> b (float64 (dof,), finite: a planner's own states) checked every `resolution`
         [m] (0: a alone): the spheres in one compiled call, then the convex pass and FCL on what is left."""
         c = self._layers()
-        if self.convex:  # spheres and the convex pass in one compiled call; FCL for the rest
+        if self.convex:  # spheres and the convex pass in one compiled call
             v, rest = c[5].decided(a, b, float(resolution))  # an int would compile another specialization
-            return v > 0 and (not len(rest) or bool(self.checker._first_invalid(rest, True)[0].all()))
-        v, unsure, steps = c[5](a, b, float(resolution))
-        if v < 0:
-            return False
-        if not len(unsure):
-            return True
-        Q = a + (unsure / max(steps, 1))[:, None] * (b - a)
-        Q[unsure == steps] = b
-        verdict = np.zeros(len(Q), np.int8)
-        self._second(c, self.checker.robot.frames(Q), verdict, np.arange(len(Q)), stop=True)
-        if (verdict == CONTACT).any():
-            return False
-        rest = Q[verdict == UNSURE]
-        return not len(rest) or bool(self.checker._first_invalid(rest, True)[0].all())
+        else:
+            v, unsure, steps = c[5](a, b, float(resolution))
+            rest = a + (unsure / max(steps, 1))[:, None] * (b - a)
+            rest[unsure == steps] = b
+        return v > 0 and (not len(rest) or bool(self.checker._first_invalid(rest, True)[0].all()))
 
     def __getattr__(self, name):  # everything else (interpolate, padding, check, ...) is the checker's
         return getattr(self.checker, name)
