@@ -58,6 +58,18 @@ def test_a_seeded_planner_gives_the_same_path_alone_or_after_others(wall_world, 
     np.testing.assert_array_equal(alone, again)
 
 
+def test_a_seeded_kpiece_plan_is_the_same_whatever_was_built_before(wall_world):
+    """KPIECE searches in a random projection of the joint space, drawn when a planner is built: a seeded planner
+    draws the same one (a service's planner is built at start-up, before any seeded plan)."""
+    checker = wall_world[1]
+    for seed in (3, 4, 5, 6):
+        alone = Planner(checker, seed=seed).plan(A, B, planner="LBKPIECE1", deadline=5.0)
+        Planner(checker).plan(B, A, planner="LBKPIECE1", deadline=5.0)  # draws from OMPL's generator in between
+        again = Planner(checker, seed=seed).plan(A, B, planner="LBKPIECE1", deadline=5.0)
+        assert alone.planner == again.planner == "LBKPIECE1"
+        np.testing.assert_array_equal(alone.path, again.path)
+
+
 @pytest.mark.parametrize("name", ["RRTConnect", "RRTstar", "BITstar", "AORRTC", "PRM"])
 def test_planners_by_name(planner, wall_world, name):
     res = planner.plan(A, B, planner=name, deadline=5.0)

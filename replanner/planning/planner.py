@@ -221,6 +221,8 @@ class Planner:
         self.si.setStateValidityChecker(state_valid)
         self._mv = _BatchMotionValidator(self.si, self)
         self.si.setMotionValidator(self._mv)
+        if self.seed is not None:  # the space's default projection (KPIECE's) is drawn here: the same for a seed
+            _seed_ompl(self.seed)
         self.si.setup()
         _LIVE.add(self)
         if self.layer == "spheres":  # compile and build the layer now, not inside the first plan's deadline
