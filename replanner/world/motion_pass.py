@@ -10,6 +10,8 @@ import copy
 
 import numba
 import numpy as np
+from numba.core import types
+from numba.experimental import structref
 
 from .convex_pass import ConvexPass, _decide_all
 from .kernels import frames_of
@@ -19,6 +21,26 @@ from .sphere_layer import CONTACT, UNSURE, SphereScene, VoxelVolume, verdicts
 STRIDE = 8  # every 8th configuration first: a contact is usually found early
 AHEAD = 0.02  # [m] the margin of an anchor's check: free with it, its neighbours within that travel are too
 OUTSIDE = -2  # what `BoundMotion` says of a motion with an end outside the joint limits
+_FIELDS = (
+    "lo", "hi", "reach", "layer_reach", "env_pad", "map_pad", "self_pad", "F", "prismatic", "joints", "parents",
+    "tab_i", "tab_f", "table", "local", "rad", "first", "in_local", "in_rad", "in_first", "ball_slot", "ball_c",
+    "ball_r", "gf", "env_mask", "ob_kind", "ob_inv", "ob_dim", "ob_id", "ob_exact", "ob_box", "octree_mask", "sat",
+    "csat", "key_min", "inv_res", "pair_a", "pair_b", "P", "D", "pfirst", "dfirst", "supported", "ob_R", "ob_t",
+    "cpair_a", "cpair_b",
+)  # fmt: skip
+
+
+@structref.register
+class _BoundType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class _Bound(structref.StructRefProxy):
+    """The decided motion's arguments as one compiled object: a call unboxes it at once, not 47 arrays (3 us)."""
+
+
+structref.define_proxy(_Bound, _BoundType, list(_FIELDS))
 
 
 class BoundMotion:
@@ -46,8 +68,8 @@ class BoundMotion:
             *layer.kernel_args(vol),
         )  # fmt: skip
         cp = convex
-        self.decided_args = None if cp is None else self.args + (
-            cp.P, cp.D, cp.pfirst, cp.dfirst, cp.supported, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b
+        self.bound = None if cp is None else _bind(
+            *self.args, cp.P, cp.D, cp.pfirst, cp.dfirst, cp.supported, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b
         )  # fmt: skip
 
     def with_ahead(self, ahead: float) -> BoundMotion:
@@ -67,7 +89,24 @@ class BoundMotion:
         """(verdict, rest) of the same motion with the convex pass (world/convex_pass.py, given at construction) on
         what the spheres left, in the same compiled call: verdict as `__call__`'s, and rest (r, dof) the
         configurations neither decided, FCL's to check. The verdicts of `__call__` then `decide_batch`."""
-        return _decided_motion(a, b, resolution, self.ahead, *self.decided_args)
+        return _decided_bound(a, b, resolution, self.ahead, self.bound)
+
+
+@numba.njit(cache=True)
+def _bind(*args):
+    return _Bound(*args)
+
+
+@numba.njit(cache=True, nogil=True)
+def _decided_bound(a, b, resolution, ahead, m):
+    """`_decided_motion` of the arguments bound in m."""
+    return _decided_motion(
+        a, b, resolution, ahead, m.lo, m.hi, m.reach, m.layer_reach, m.env_pad, m.map_pad, m.self_pad, m.F,
+        m.prismatic, m.joints, m.parents, m.tab_i, m.tab_f, m.table, m.local, m.rad, m.first, m.in_local, m.in_rad,
+        m.in_first, m.ball_slot, m.ball_c, m.ball_r, m.gf, m.env_mask, m.ob_kind, m.ob_inv, m.ob_dim, m.ob_id,
+        m.ob_exact, m.ob_box, m.octree_mask, m.sat, m.csat, m.key_min, m.inv_res, m.pair_a, m.pair_b, m.P, m.D,
+        m.pfirst, m.dfirst, m.supported, m.ob_R, m.ob_t, m.cpair_a, m.cpair_b,
+    )  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
