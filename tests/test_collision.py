@@ -163,7 +163,7 @@ def test_body_poses_are_the_links_fk_times_the_body_offsets(panda):
         np.testing.assert_allclose(bodies.poses[..., bi, :, :], T[..., panda.link_index(link), :, :] @ off, atol=1e-12)
 
 
-def test_broadphase_and_tables_never_change_a_verdict(panda, panda_cfg):
+def test_broadphase_and_tables_never_change_a_verdict_nor_does_splitting_it(panda, panda_cfg):
     world = World(panda)
     add_table(world)
     rng = np.random.default_rng(5)
@@ -184,6 +184,7 @@ def test_broadphase_and_tables_never_change_a_verdict(panda, panda_cfg):
     assert 0.1 < ref.mean() < 0.9
     np.testing.assert_array_equal(batch, ref)
     np.testing.assert_array_equal(single, ref)
+    np.testing.assert_array_equal(checker.is_valid_batch(Q, split=True), ref)  # halves on two threads
 
 
 def test_the_tables_coarse_blocks_give_the_fine_tables_answers(profile):

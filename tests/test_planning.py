@@ -386,9 +386,9 @@ def test_fcl_checks_every_configuration_of_a_returned_path_at_path_resolution(wa
     seen: list[np.ndarray] = []
     real = exact.is_valid_batch
 
-    def recorded(Q):
+    def recorded(Q, **kw):
         seen.append(np.array(Q))
-        return real(Q)
+        return real(Q, **kw)
 
     monkeypatch.setattr(exact, "is_valid_batch", recorded)
     for goal, direct in ((B, False), (A + 0.05, True)):

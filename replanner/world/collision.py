@@ -12,8 +12,10 @@ every point within `padding` of the body), so `is_valid(q)` is False whenever th
 from __future__ import annotations
 
 import logging
+import os
 import threading
 from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from enum import Enum
 from typing import NamedTuple
@@ -31,6 +33,20 @@ from .scene import World, WorldSnapshot
 
 log = logging.getLogger(__name__)
 _NO_MAP = (np.zeros(3), 1.0, np.zeros(3, np.int64), np.zeros(1, np.int32))  # a one-cell table: no map
+SPLIT_MIN = 256  # configurations a split broadphase takes at least: a second thread's hand-off costs ~30 us
+_HELPER: list[ThreadPoolExecutor] = []
+_HELPER_LOCK = threading.Lock()
+
+
+def _second_thread() -> ThreadPoolExecutor:
+    """The one thread split broadphases share, started on first use."""
+    with _HELPER_LOCK:
+        if not _HELPER:
+            _HELPER.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="broadphase"))
+        return _HELPER[0]
+
+
+os.register_at_fork(after_in_child=_HELPER.clear)  # a forked child has no helper thread: it starts its own
 
 
 class ContactKind(str, Enum):
@@ -279,11 +295,13 @@ class CollisionChecker:
         locate: bool = False,
         occupancy=None,
         robot_pairs: bool = True,
+        split: bool = False,
     ) -> tuple[np.ndarray, list[Contact | None]]:
         """Validity (N,) of configurations Q (N, dof); contacts of the invalid ones (None where valid).
 
         octree_only: test the occupancy map alone (for paths already checked against everything else).
         occupancy: that map instead of the world's. robot_pairs: False skips the robot's own link pairs.
+        split: the broadphase of a large batch in halves on two threads (the same tests, in the same order).
         """
         snap, scene, objs, octree = self._current(occupancy)
         N = len(Q)
@@ -296,12 +314,26 @@ class CollisionChecker:
         occ = snap.occupancy
         table = occ.broadphase_table() if occ is not None and len(occ) else _NO_MAP
         k0 = len(scene.pair_a) if octree_only else 0 if robot_pairs else scene.n_robot_pairs
-        found, m = broadphase(
-            kernel_array(Q), *self.robot.chain, scene.body_slot, scene.body_off, scene.box_c, scene.box_h,
-            scene.octree_mask, *table, not octree_only, scene.env_mask, scene.obs_lo, scene.obs_hi, scene.obs_R,
-            scene.obs_c, scene.obs_h, scene.hull_v, scene.hull_first, scene.pair_a, scene.pair_b, scene.pair_tab, k0,
-            scene.tables.packed_i, scene.tables.packed_f, scene.tables.lookup, T, np.empty((max(64, N), 4), np.int64),
+        Qk = kernel_array(Q)
+        args = (
+            *self.robot.chain, scene.body_slot, scene.body_off, scene.box_c, scene.box_h, scene.octree_mask, *table,
+            not octree_only, scene.env_mask, scene.obs_lo, scene.obs_hi, scene.obs_R, scene.obs_c, scene.obs_h,
+            scene.hull_v, scene.hull_first, scene.pair_a, scene.pair_b, scene.pair_tab, k0, scene.tables.packed_i,
+            scene.tables.packed_f, scene.tables.lookup,
         )  # fmt: skip
+
+        def tests_of(a: int, b: int):  # rows a:b (the broadphase releases the GIL)
+            return broadphase(Qk[a:b], *args, T[a:b], np.empty((max(64, b - a), 4), np.int64))
+
+        if split and N >= SPLIT_MIN:
+            h = N // 2
+            first = _second_thread().submit(tests_of, 0, h)
+            rest, r = tests_of(h, N)
+            found, m = first.result()
+            rest[:r, 0] += h
+            found, m = np.concatenate([found[:m], rest[:r]]), m + r
+        else:
+            found, m = tests_of(0, N)
         # the narrowphase work per configuration, as plain lists: no numpy call per pair
         tests: dict[int, list] = {}
         for n, kind, a, b in found[:m].tolist():
@@ -347,12 +379,12 @@ class CollisionChecker:
         _, contacts = self._first_invalid(Q, True, locate=True)
         return contacts[0]
 
-    def is_valid_batch(self, Q) -> np.ndarray:
-        """Validity (N,) of configurations Q (N, dof)."""
+    def is_valid_batch(self, Q, split: bool = False) -> np.ndarray:
+        """Validity (N,) of configurations Q (N, dof). split: the broadphase of a large batch on two threads."""
         Q = self.robot.check_q(Q)
         if Q.ndim != 2:
             raise InvalidInputError(f"Q must be (N, {self.robot.dof}), got shape {Q.shape}")
-        valid, _ = self._first_invalid(Q, False)
+        valid, _ = self._first_invalid(Q, False, split=split)
         return valid
 
     def clearance(self, q, max_distance: float = 1.0) -> Clearance:
