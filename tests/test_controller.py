@@ -145,6 +145,11 @@ def test_block_then_replan_spliced_while_moving(make_sim):
     assert ("MONITORING_WITH_PLANNING_PENDING", "MONITORING", "spliced") in e
     assert not any(t[1] == "HOLDING" or t[2] == "brake_and_abort" for t in e)  # no stop on the way
     _check_executed_motion(sim, t_start)
+    # the replan's own plan time is in the latency account (what `replanner status` and the demo report)
+    ctl = sim.controller
+    took = [d["plan_time"] for _, what, d in ctl.events_log if what == "plan_sent" and d["spliced"]]
+    planned = ctl.latency.report(ctl.clock())["replan_plan"]
+    assert took and planned["n"] >= len(took) and planned["max"] >= max(took)
 
 
 def _check_executed_motion(sim, t_start: float):

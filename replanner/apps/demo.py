@@ -165,8 +165,19 @@ def compute_metrics(rec: Recording, *, safety_distance: float, bins: tuple[str, 
                     if (s.get("latency") or {}).get(stage, {}).get("p99") is not None
                 ]
             )
-            for stage in ("sensor_to_map", "map_to_check", "check_to_command", "reaction", "joint_state_age")
+            for stage in (
+                "sensor_to_map",
+                "map_to_check",
+                "check_to_command",
+                "reaction",
+                "joint_state_age",
+                "replan_plan",
+            )
         },
+        # a replan's plan itself (the service's own time): the medians of its windows over the run
+        "service_replan_plan_median_s": _stats(
+            [m for s in status if (m := ((s.get("latency") or {}).get("replan_plan") or {}).get("median")) is not None]
+        ),
         "real_time_factor": _stats([e["rtf"] for e in kinds("clearance") if e.get("rtf") is not None]),
         # the sim's own lag on a busy machine: physics skipped, motions that reached it after their start
         "sim_dropped_s": max((e.get("dropped", 0.0) for e in kinds("clearance")), default=0.0),

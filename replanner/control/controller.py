@@ -297,7 +297,7 @@ class Controller(Holding):
             return  # canceled or superseded
         self._job, now = None, self.clock()
         if job.land is not None:
-            self.latency.plan_answered(now, job.requested, job.deadline)
+            self.latency.plan_answered(now, job.requested, job.deadline, answer.result and answer.result.total_time)
         if answer.error is None and job.land is not None and now > job.land - 0.002:
             late = TrajectoryError(f"the plan arrived {now - job.land:.3f} s after its landing time")
             answer = PlanAnswer(job, error=late)

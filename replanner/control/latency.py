@@ -22,6 +22,7 @@ STAGES = (
     "joint_state_age",
     "check_gap",
     "plan_overrun",
+    "replan_plan",
 )
 LEAD_PERCENTILE = 90.0  # of plan overruns a replan's landing time allows for
 MAX_EXTRA_LEAD = 0.25  # [s] beyond the configured margin: later than that, braking is the better answer
@@ -110,10 +111,13 @@ class LatencyAccount:
         with self._lock:
             self.stages["joint_state_age"].add(now, now - stamp)
 
-    def plan_answered(self, now: float, asked: float, deadline: float) -> None:
-        """A replan's answer arrived at `now`, asked at `asked` with a planning budget of `deadline` [s]."""
+    def plan_answered(self, now: float, asked: float, deadline: float, took: float | None = None) -> None:
+        """A replan's answer arrived at `now`, asked at `asked` with a planning budget of `deadline` [s]; `took` [s]:
+        its plan's own time (search, shortcutting, FCL's re-check; None: no plan came back)."""
         with self._lock:
             self.stages["plan_overrun"].add(now, now - asked - deadline)
+            if took is not None:
+                self.stages["replan_plan"].add(now, took)
 
     def landing_margin(self, now: float, margin: float) -> float:
         """[s] after a replan's deadline its landing time lies: `margin`, or more when answers have been arriving
