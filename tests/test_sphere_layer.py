@@ -11,7 +11,15 @@ from replanner.world.convex_pass import decide_batch
 from replanner.world.geometry import Box, Cylinder, Sphere, sample_surface
 from replanner.world.layered import FastChecker
 from replanner.world.scene import World
-from replanner.world.sphere_layer import CONTACT, FREE, UNSURE, VoxelVolume, ball_meets_box, primitive_distance
+from replanner.world.sphere_layer import (
+    CBLOCK,
+    CONTACT,
+    FREE,
+    UNSURE,
+    VoxelVolume,
+    ball_meets_box,
+    primitive_distance,
+)
 from replanner.world.spheres import cover
 from replanner.world.transforms import make_transform
 from tests.oracle import HULL_MARGIN, PyBulletOracle
@@ -179,14 +187,21 @@ def test_a_motion_decided_in_one_call_is_the_spheres_then_the_convex_pass(profil
 
 
 def test_the_coarse_blocks_never_hide_a_voxel_a_box_meets():
-    """The map's two summed-volume tables against a brute count of the voxels (merged to the table's cells) that
-    random boxes overlap, boxes reaching past the map included: the same count, 0 exactly when none."""
+    """The map's two summed-volume tables: as numpy's cumulative sums build them, and against a brute count of
+    the voxels (merged to the table's cells) that random boxes overlap, boxes reaching past the map included: the
+    same count, 0 exactly when none."""
     rng = np.random.default_rng(11)
     for resolution, n_vox, spread in ((0.01, 3000, 60), (0.02, 4000, 300), (0.05, 40, 7)):
         keys = np.unique(rng.integers(-spread, spread, (n_vox, 3)) // [1, 2, 1] * [1, 2, 1], axis=0)
         vol = VoxelVolume(keys, resolution)
         cell = 1.0 / vol.inv_res
         cells = np.unique(keys // int(round(cell / resolution)), axis=0)
+        grid = np.zeros(vol.sat.shape, np.int64)  # both tables as numpy's cumulative sums build them
+        grid[tuple((cells - vol.key_min + 1).T)] = 1
+        np.testing.assert_array_equal(vol.sat, grid.cumsum(0).cumsum(1).cumsum(2))
+        blocks = np.zeros(vol.csat.shape, np.int64)
+        np.add.at(blocks, tuple(((cells - vol.key_min) // CBLOCK + 1).T), 1)
+        np.testing.assert_array_equal(vol.csat, blocks.cumsum(0).cumsum(1).cumsum(2))
         zero = 0
         for _ in range(600):
             lo = rng.uniform(-1.3, 1.1, 3) * spread * resolution

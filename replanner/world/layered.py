@@ -39,6 +39,7 @@ class FastChecker:
         decide_batch(c[4], c[2], self.checker.robot.frames(q), np.zeros(1, np.int64), c[3])
         self.is_valid_batch(q)
         self.path_valid(np.vstack([q, q]))
+        VoxelVolume(np.zeros((1, 3), np.int64), 0.01)  # the first map's tables
 
     def passes(self) -> tuple[SphereScene, VoxelVolume, ConvexPass]:
         """The sphere layer, the map's voxel volume and the convex pass of the world as it is now."""

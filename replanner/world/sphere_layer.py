@@ -181,16 +181,9 @@ class VoxelVolume:
         self.inv_res = 1.0 / (resolution * f)
         self.key_min = keys.min(axis=0)
         n = keys.max(axis=0) - self.key_min + 1
-        grid = np.zeros(tuple(n + 1), np.int32)
-        k = keys - self.key_min + 1
-        grid[k[:, 0], k[:, 1], k[:, 2]] = 1
-        self.sat = np.ascontiguousarray(grid.cumsum(0).cumsum(1).cumsum(2), dtype=np.int32)
-        m = -(-n // CBLOCK)
-        blocks = np.zeros(tuple(m + 1), np.int32)
-        blocks[1:, 1:, 1:] = np.add.reduceat(
-            np.add.reduceat(np.add.reduceat(grid[1:, 1:, 1:], np.arange(0, n[0], CBLOCK), axis=0),
-                            np.arange(0, n[1], CBLOCK), axis=1), np.arange(0, n[2], CBLOCK), axis=2)  # fmt: skip
-        self.csat = np.ascontiguousarray(blocks.cumsum(0).cumsum(1).cumsum(2), dtype=np.int32)
+        self.sat = np.zeros(tuple(n + 1), np.int32)
+        self.csat = np.zeros(tuple(-(-n // CBLOCK) + 1), np.int32)
+        _summed_volumes(keys - self.key_min + 1, self.sat, self.csat)  # a replan's first check waits for it
 
     @classmethod
     def of(cls, occ: OccupancyMap | None) -> VoxelVolume:
@@ -202,6 +195,30 @@ class VoxelVolume:
 
 
 VoxelVolume.EMPTY = VoxelVolume(np.zeros((0, 3), np.int64), 1.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _summed_volumes(k, sat, csat):
+    """sat, csat (zeros, a zero first plane per axis) = the summed-volume tables of the cells k (M, 3; from 1)
+    and of their CBLOCK-sided blocks (how many occupied cells each holds)."""
+    for i in range(k.shape[0]):
+        a, b, c = k[i, 0], k[i, 1], k[i, 2]
+        if sat[a, b, c] == 0:
+            sat[a, b, c] = 1
+            csat[(a - 1) // CBLOCK + 1, (b - 1) // CBLOCK + 1, (c - 1) // CBLOCK + 1] += 1
+    for t in (sat, csat):
+        n0, n1, n2 = t.shape
+        for a in range(n0):
+            for b in range(n1):
+                for c in range(1, n2):
+                    t[a, b, c] += t[a, b, c - 1]
+            for b in range(1, n1):
+                for c in range(n2):
+                    t[a, b, c] += t[a, b - 1, c]
+        for a in range(1, n0):
+            for b in range(n1):
+                for c in range(n2):
+                    t[a, b, c] += t[a - 1, b, c]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
