@@ -255,7 +255,7 @@ class PlanningConfig(Section):
     attempt_checks: int = Field(
         1000,
         ge=1,
-        description="Validity checks of the first attempt before retrying with fresh random samples, each retry "
+        description="Validity checks of the first attempt before retrying (each planner grows its tree on), each retry "
         "twice as many (counts).",
     )
     retry_planner: str | None = Field(

@@ -2,8 +2,8 @@
 
 Validity comes from the `CollisionChecker`: single states through a Python callback, and whole motions
 through a `MotionValidator` subclass that checks every interpolated configuration of a segment in one batch.
-A failed attempt is retried with the planner's fresh random state until the deadline (paper 002's
-fallback); the path is then shortcut, with the same checker, within the same deadline.
+A failed attempt is retried until the deadline (paper 002's fallback), each planner growing its own tree on from
+where its last attempt stopped; the path is then shortcut, with the same checker, within the same deadline.
 """
 
 from __future__ import annotations
@@ -138,8 +138,8 @@ class Planner:
     Args:
         checker: validity of states and motions.
         planner: default OMPL planner name (see PLANNERS).
-        attempt_checks: validity checks (states and motions) of the first attempt before retrying with fresh random
-            state, each retry twice as many (counts: with time enough, a seeded plan is the same on any machine;
+        attempt_checks: validity checks (states and motions) of the first attempt before retrying (the planner's tree
+            grows on), each retry twice as many (counts: with time enough, a seeded plan is the same on any machine;
             the deadline may still cut it short).
         shortcut_tries: random shortcuts tried after the search (at most; six misses in a row end it sooner).
         planner_range: planner step [rad]; None keeps OMPL's default.
@@ -369,7 +369,7 @@ class Planner:
         ss.setStartAndGoalStates(self._alloc(start), self._alloc(q_goal))
         # the default planner's retries alternate with the retry planner: planners fail on different problems
         other = planner_class(self.retry_planner) if planner is None and self.retry_planner else cls
-        attempts, used = 0, None
+        attempts, used, algos = 0, None, {}
         pdef = ss.getProblemDefinition()
         W = raw_path = None
         simplify_time = 0.0
@@ -379,11 +379,13 @@ class Planner:
                 break
             attempts += 1
             use = other if attempts % 2 == 0 else cls
-            if use is not used:
-                used, algo = use, use(self.si)
-                if self.planner_range is not None and hasattr(algo, "setRange"):
-                    algo.setRange(self.planner_range)
-                ss.setPlanner(algo)
+            if use is not used:  # each planner grows its own tree on: a retry goes on from where it stopped
+                if use not in algos:
+                    algos[use] = use(self.si)
+                    if self.planner_range is not None and hasattr(algos[use], "setRange"):
+                        algos[use].setRange(self.planner_range)
+                used = use
+                ss.setPlanner(algos[use])
             ptc = ob.plannerOrTerminationCondition(
                 ob.exactSolnPlannerTerminationCondition(pdef),
                 ob.timedPlannerTerminationCondition(remaining),  # the deadline, the only clock in a plan
@@ -402,7 +404,7 @@ class Planner:
                 if W is None:  # a thin obstacle slipped between the coarse search checks: search finer
                     self._search_resolution = max(fine, self._search_resolution / self.search_coarseness)
             if W is None:
-                ss.clear()  # a fresh tree: the retry explores from new random samples
+                pdef.clearSolutionPaths()
         search_time = clock() - t_searching - simplify_time
         if cancel is not None and cancel.is_set():
             raise PlanningCanceled(f"planning canceled after {clock() - t_begin:.3f} s")
