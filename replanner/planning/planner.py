@@ -379,13 +379,14 @@ class Planner:
                 break
             attempts += 1
             use = other if attempts % 2 == 0 else cls
-            if use is not used:  # each planner grows its own tree on: a retry goes on from where it stopped
-                if use not in algos:
-                    algos[use] = use(self.si)
-                    if self.planner_range is not None and hasattr(algos[use], "setRange"):
-                        algos[use].setRange(self.planner_range)
+            algo = algos.get(use)  # one planner of each kind a plan: a retry grows its tree on
+            if algo is None:
+                algo = algos[use] = use(self.si)
+                if self.planner_range is not None and hasattr(algo, "setRange"):
+                    algo.setRange(self.planner_range)
+            if use is not used:
                 used = use
-                ss.setPlanner(algos[use])
+                ss.setPlanner(algo)
             ptc = ob.plannerOrTerminationCondition(
                 ob.exactSolnPlannerTerminationCondition(pdef),
                 ob.timedPlannerTerminationCondition(remaining),  # the deadline, the only clock in a plan
