@@ -198,3 +198,19 @@ def test_empty_map_has_no_tree_and_collides_with_nothing(panda):
     world = World(panda)
     world.set_occupancy(occ)
     assert CollisionChecker(panda, world).is_valid(panda.home)
+
+
+def test_a_map_the_robot_is_far_from_never_builds_its_tree_and_one_it_meets_does(panda):
+    """A planning job brings a new map each time; its FCL tree (milliseconds) is built only when a test needs it."""
+    world = World(panda)
+    far = OccupancyMap.from_points(np.random.default_rng(0).uniform([2.0, 2.0, 0.0], [2.3, 2.3, 0.3], (500, 3)), 0.01)
+    world.set_occupancy(far)
+    checker = CollisionChecker(panda, world)
+    Q = np.linspace(panda.home, panda.home + 0.3, 50)
+    assert checker.is_valid_batch(Q).all() and checker.clearance(panda.home).distance > 0.5
+    assert not far.has_tree  # nothing came within a cell of it
+    p = panda.link_pose(panda.home, "panda_hand")[:3, 3]
+    near = OccupancyMap.from_points(p + np.random.default_rng(1).uniform(-0.03, 0.03, (500, 3)), 0.01)
+    world.set_occupancy(near)
+    contact = checker.check(panda.home)
+    assert near.has_tree and contact is not None and contact.kind == "octree"

@@ -11,10 +11,11 @@ every point within `padding` of the body), so `is_valid(q)` is False whenever th
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from enum import Enum
@@ -205,7 +206,7 @@ class CollisionChecker:
 
     def _current(
         self, occupancy=None
-    ) -> tuple[WorldSnapshot, CollisionScene, ThreadObjects, fcl.CollisionObject | None]:
+    ) -> tuple[WorldSnapshot, CollisionScene, ThreadObjects, Callable[[], fcl.CollisionObject] | None]:
         snap = self.world.snapshot()
         if occupancy is not None:  # another map than the world's (e.g. only what is new in the world's)
             snap = replace(snap, occupancy=occupancy)
@@ -217,13 +218,17 @@ class CollisionChecker:
         occ = snap.occupancy
         octree = None
         if occ is not None and len(occ):
-            cached = self._octree_obj
-            if cached is None or cached[0] is not occ:
-                cached = (occ, fcl.CollisionObject(occ.tree, fcl.Transform()))
-                if occupancy is None:  # the world's map is the one asked for again and again
-                    self._octree_obj = cached
-            octree = cached[1]
+            octree = functools.partial(self._octree_of, occ, occupancy is None)
         return snap, scene, objs, octree
+
+    def _octree_of(self, occ, keep: bool) -> fcl.CollisionObject:
+        """FCL's object of map `occ` (keep: the world's, asked for again and again), built when a test first needs
+        it: a check whose bodies meet no voxel's cell never builds the tree (2-9 ms, each planning job's new map)."""
+        cached = self._octree_obj
+        if cached is None or cached[0] is not occ:
+            cached = (occ, fcl.CollisionObject(occ.tree, fcl.Transform()))
+            self._octree_obj = cached if keep else self._octree_obj
+        return cached[1]
 
     # ------------------------------------------------------------------ broadphase
     def _body_poses(self, scene: CollisionScene, Q: np.ndarray) -> np.ndarray:
@@ -232,10 +237,8 @@ class CollisionChecker:
 
     @staticmethod
     def _aabbs(T: np.ndarray, c: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World-aligned boxes (N, K, B, 3) of local boxes (centres c, half extents h: (K, B, 3)) at body poses
-        T (N, B, 4, 4)."""
-        lo = np.empty((len(T),) + c.shape)
-        hi = np.empty_like(lo)
+        """World-aligned boxes (N, K, B, 3) of local boxes (centres c, half extents h: (K, B, 3)) at poses T."""
+        lo, hi = np.empty((len(T),) + c.shape), np.empty((len(T),) + c.shape)
         body_boxes(np.ascontiguousarray(T), c, h, lo, hi)
         return lo, hi
 
@@ -243,7 +246,7 @@ class CollisionChecker:
     def _narrow(self, scene, objs, octree, T_n, tests, locate: bool = False) -> Contact | None:
         """FCL tests for one configuration, in order; returns the first contact found.
 
-        tests: (kind, a, b) with kind 0 = body a vs octree, 1 = body a vs obstacle b, 2 = body a vs body b.
+        tests: (kind, a, b) with kind 0 = body a vs octree (`octree()`), 1 = body a vs obstacle b, 2 = body a vs body b.
         locate: say where an octree contact is (a second FCL query: for messages, not for validity checks).
         """
         req = self._request
@@ -266,8 +269,8 @@ class CollisionChecker:
         for kind, a, b in tests:
             if kind == 0:
                 body = place(objs.map_, placed_map, a)
-                if collide(body, octree, req):
-                    near = self._contact_point(body, octree) if locate else None
+                if collide(body, octree(), req):
+                    near = self._contact_point(body, octree()) if locate else None
                     return Contact(ContactKind.OCTREE, bodies[a].name, OCTREE, near)
             elif kind == 1:
                 name, obj = scene.obstacles[b]
@@ -429,7 +432,7 @@ class CollisionChecker:
                 for k in np.argsort(bound):
                     if bound[k] >= best[0]:
                         break  # no remaining body can be closer than the best found
-                    measure(near[k], octree, OCTREE)
+                    measure(near[k], octree(), OCTREE)
         d, body, obstacle, pa, pb = best
         return Clearance(d, body, obstacle, pa, pb)
 

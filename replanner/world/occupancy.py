@@ -138,6 +138,11 @@ class OccupancyMap:
             self._tree = build_fcl_octree(self.keys, self.resolution)  # two racing builds make equal trees
         return self._tree
 
+    @property
+    def has_tree(self) -> bool:
+        """Whether `tree` has been built: checks whose bodies meet none of the map's cells never build it."""
+        return self._tree is not None
+
     @cached_property
     def added_map(self) -> OccupancyMap | None:
         """A map of only the voxels this one added to the one before it (None if it says nothing about that)."""
