@@ -159,6 +159,36 @@ def test_a_motion_check_gives_the_layers_verdicts_on_its_configurations_every_ei
     assert kinds == {"free", "unsure", "contact"}
 
 
+def test_a_motion_from_ends_known_free_checks_only_what_lies_between(profile):
+    """`given` ends (a planner's states found free before) are not asked again: the verdict and the configurations
+    left unsure are those of the motion's other configurations, an end in contact included."""
+    robot, rng, fast = _cluttered(profile, 17)
+    layer, volume = fast.layer()
+    each = fast.motion().with_ahead(0.0)
+    A = robot.random_q(rng, 400)
+    step = np.repeat([0.3, 0.002], 200)[:, None]  # short motions: an end in contact, nothing between
+    B = np.clip(A + rng.normal(0, 1, A.shape) * step, robot.limits.lower, robot.limits.upper)
+    kinds = set()
+    for a, b in zip(A, B):
+        steps = each(a, b, 0.01)[2]
+        Q = a + (np.arange(steps + 1) / steps)[:, None] * (b - a)
+        Q[-1] = b
+        verdict = layer.classify(Q, volume)
+        for given in (1, 2, 3):
+            asked = np.ones(steps + 1, bool)
+            asked[0], asked[-1] = not given & 1, not given & 2
+            v, unsure, _ = each(a, b, 0.01, given)
+            if (verdict[asked] == CONTACT).any():
+                assert v == -1
+                kinds.add("contact")
+                continue
+            order = [k for k in range(steps + 1) if k % 8 == 0] + [k for k in range(steps + 1) if k % 8]
+            assert v == 1 and list(unsure) == [k for k in order if verdict[k] == UNSURE and asked[k]]
+            kinds.add("an end in contact not asked" if (verdict == CONTACT).any() else "free or unsure")
+        assert each(a, a, 0.0, 3)[0] == (-1 if verdict[0] == CONTACT else 1)  # a state check ignores `given`
+    assert kinds == {"contact", "an end in contact not asked", "free or unsure"}
+
+
 def test_a_motion_decided_in_one_call_is_the_spheres_then_the_convex_pass(profile):
     """`BoundMotion.decided` runs the convex pass inside the motion's compiled call: its verdict and the
     configurations it leaves to FCL are those of the sphere pass followed by `decide_batch`, call by call."""

@@ -67,6 +67,12 @@ def test_broadphase_never_misses_a_voxel():
     assert got.mean() < 0.9 and truth.mean() > 0.05  # and it does rule boxes out
     far = occ.any_in_boxes(np.array([[5.0, 5, 5], [-9, -9, -9]]), np.array([[6.0, 6, 6], [-8, -8, -8]]))
     assert not far.any()
+    _, _, n, sat = occ.broadphase_table()  # the compiled table is numpy's cumulative sums of the counts per cell
+    grid = np.zeros(n, np.int64)
+    np.add.at(grid, tuple(((occ.keys - occ.keys.min(axis=0)) // 4).T), 1)
+    want = np.zeros(n + 1, np.int64)
+    want[1:, 1:, 1:] = grid.cumsum(0).cumsum(1).cumsum(2)
+    np.testing.assert_array_equal(sat, want.ravel())
 
 
 @pytest.mark.parametrize(

@@ -187,6 +187,7 @@ class Planner:
             raise InvalidInputError("attempt_checks must be >= 1 and shortcut_tries >= 0")
         self.attempt_checks = int(attempt_checks)
         self._attempt: _Attempt | None = None
+        self._free: set[bytes] | None = None  # during a plan: configurations found free in its world
         self.shortcut_tries = int(shortcut_tries)
         self.planner_range = planner_range
         self.ik_restarts = ik_restarts
@@ -215,8 +216,12 @@ class Planner:
             if p._attempt is not None:
                 p._attempt.count()
             q, c = p._to_np(s), p.checker
-            # the layer's compiled call without a check's input checks (the planner's own states)
-            return c.motion_valid(q, q, 0.0) if isinstance(c, FastChecker) else c.is_valid(q)
+            if not isinstance(c, FastChecker):
+                return c.is_valid(q)
+            ok = c.motion_valid(q, q, 0.0)  # the layer's compiled call without a check's input checks
+            if ok and p._free is not None:
+                p._free.add(q.tobytes())
+            return ok
 
         self.si.setStateValidityChecker(state_valid)
         self._mv = _BatchMotionValidator(self.si, self)
@@ -252,9 +257,17 @@ class Planner:
     def _motion_ok(self, a: np.ndarray, b: np.ndarray, resolution: float | None = None) -> bool:
         """The straight motion a -> b, checked every `resolution` [m] (None: the checker's path resolution)."""
         c = self.checker
-        if isinstance(c, FastChecker):  # the compiled call, without a path check's input checks
-            return c.motion_valid(a, b, c.path_resolution if resolution is None else resolution)
-        return c.path_valid(np.array([a, b]), resolution)
+        if not isinstance(c, FastChecker):
+            return c.path_valid(np.array([a, b]), resolution)
+        free, res = self._free, c.path_resolution if resolution is None else resolution
+        if free is None:  # the compiled call, without a path check's input checks
+            return c.motion_valid(a, b, res)
+        ka, kb = a.tobytes(), b.tobytes()
+        given = int(ka in free) | 2 * int(kb in free)  # ends found free before are not checked again
+        ok = c.motion_valid(a, b, res, given)
+        if ok and given != 3:
+            free.update((ka, kb))
+        return ok
 
     # ------------------------------------------------------------------ conversions
     def _to_np(self, s) -> np.ndarray:
@@ -299,7 +312,7 @@ class Planner:
             raise GoalInvalid(str(err)) from None
         if q.ndim != 1:
             raise GoalInvalid(f"goal must be one configuration of {r.dof} joints, got shape {q.shape}")
-        contact = checker.check(q)
+        contact = None if checker.is_valid(q) else checker.check(q)  # the layer first: FCL's tree only if needed
         if contact is not None:
             raise GoalInvalid(within_padding(checker, q, contact, "goal"), contact)
         return q
@@ -323,13 +336,11 @@ class Planner:
         padded geometry before the deadline starts (the last few paddings are kept).
         """
         checker = self.paddings.get(padding, self.checker)
-        if checker is self.checker:
-            return self._plan(start, goal, planner, deadline, cancel)
         base, self.checker = self.checker, checker  # the callbacks read self.checker
         try:
             return self._plan(start, goal, planner, deadline, cancel)
         finally:
-            self.checker = base
+            self.checker, self._free = base, None
 
     def _plan(self, start, goal, planner: str | None, deadline: float, cancel: threading.Event | None) -> PlanResult:
         clock = self.clock
@@ -347,10 +358,11 @@ class Planner:
         except InvalidInputError as err:
             raise StartInvalid(str(err)) from None
         start = np.clip(start, r.limits.lower, r.limits.upper)  # a measured arm settles a hair past a limit
-        contact = self.checker.check(start)
+        contact = None if self.checker.is_valid(start) else self.checker.check(start)
         if contact is not None:
             raise StartInvalid(within_padding(self.checker, start, contact, "start"), contact)
         q_goal = self.resolve_goal(start, goal)
+        self._free = {start.tobytes(), np.asarray(q_goal, np.float64).tobytes()}
         t_end = t_begin + deadline * (1.0 - FINAL_CHECKS_SHARE)
         t_stop = t_begin + deadline * (1.0 + FINAL_CHECKS_SHARE)  # the promise: back by then, or failed
 

@@ -232,10 +232,24 @@ def octree_stream(codes, depth):
 
 @numba.njit(cache=True, nogil=True)
 def count_cells(keys, key_min, ratio, n):
-    """Voxels (keys (M, 3)) per coarse cell of `ratio` voxels a side from key_min: counts (n[0], n[1], n[2])."""
-    grid = np.zeros((n[0], n[1], n[2]), np.int32)
+    """The summed-volume table (n + 1 per axis, a zero slab in front) of the voxels (keys (M, 3)) per coarse cell of
+    `ratio` voxels a side from key_min: entry [i, j, k] counts the voxels of the cells before (i, j, k) on all axes."""
+    sat = np.zeros((n[0] + 1, n[1] + 1, n[2] + 1), np.int32)
     for i in range(keys.shape[0]):
-        grid[
-            (keys[i, 0] - key_min[0]) // ratio, (keys[i, 1] - key_min[1]) // ratio, (keys[i, 2] - key_min[2]) // ratio
-        ] += 1
-    return grid
+        sat[
+            (keys[i, 0] - key_min[0]) // ratio + 1, (keys[i, 1] - key_min[1]) // ratio + 1,
+            (keys[i, 2] - key_min[2]) // ratio + 1,
+        ] += 1  # fmt: skip
+    for i in range(1, n[0] + 1):  # the three cumulative sums in one pass each, in place
+        for j in range(1, n[1] + 1):
+            for k in range(1, n[2] + 1):
+                sat[i, j, k] += sat[i, j, k - 1]
+    for i in range(1, n[0] + 1):
+        for j in range(1, n[1] + 1):
+            for k in range(1, n[2] + 1):
+                sat[i, j, k] += sat[i, j - 1, k]
+    for i in range(1, n[0] + 1):
+        for j in range(1, n[1] + 1):
+            for k in range(1, n[2] + 1):
+                sat[i, j, k] += sat[i - 1, j, k]
+    return sat

@@ -107,14 +107,15 @@ class FastChecker:
             return self.motion_valid(W[0], W[0], 0.0)
         return all(self.motion_valid(a, b, res) for a, b in zip(W[:-1], W[1:]))
 
-    def motion_valid(self, a: np.ndarray, b: np.ndarray, resolution: float) -> bool:
+    def motion_valid(self, a: np.ndarray, b: np.ndarray, resolution: float, given: int = 0) -> bool:
         """The straight motion a -> b (float64 (dof,), finite: a planner's own states) checked every `resolution`
-        [m] (0: a alone): the spheres in one compiled call, then the convex pass and FCL on what is left."""
+        [m] (0: a alone): the spheres in one compiled call, then the convex pass and FCL on what is left. `given`:
+        ends the caller knows free in this world, not checked again (1: a, 2: b, 3: both)."""
         c = self._layers()
         if self.convex:  # spheres and the convex pass in one compiled call
-            v, rest = c[5].decided(a, b, float(resolution))  # an int would compile another specialization
+            v, rest = c[5].decided(a, b, float(resolution), given)  # an int would compile another specialization
         else:
-            v, unsure, steps = c[5](a, b, float(resolution))
+            v, unsure, steps = c[5](a, b, float(resolution), given)
             rest = a + (unsure / max(steps, 1))[:, None] * (b - a)
             rest[unsure == steps] = b
         return v > 0 and (not len(rest) or bool(self.checker._first_invalid(rest, True)[0].all()))

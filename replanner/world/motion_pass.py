@@ -78,18 +78,19 @@ class BoundMotion:
         other.ahead = float(ahead)
         return other
 
-    def __call__(self, a: np.ndarray, b: np.ndarray, resolution: float) -> tuple[int, np.ndarray, int]:
+    def __call__(self, a: np.ndarray, b: np.ndarray, resolution: float, given: int = 0) -> tuple[int, np.ndarray, int]:
         """(verdict, unsure, steps) of the motion a -> b (float64 (dof,)) checked every `resolution` [m]: verdict
         -1 if a configuration is in contact for certain, OUTSIDE if an end is outside the limits, else 1 with the
-        indices k of the configurations a + k / steps (b - a) the layer could not decide. resolution 0: a alone."""
-        v, unsure, steps, _ = _sphere_motion(a, b, resolution, self.ahead, *self.args)
+        indices k of the configurations a + k / steps (b - a) the layer could not decide. resolution 0: a alone.
+        `given`: ends already known free by the exact verdict, not checked again (1: a, 2: b, 3: both)."""
+        v, unsure, steps, _ = _sphere_motion(a, b, resolution, self.ahead, given, *self.args)
         return v, unsure, steps
 
-    def decided(self, a: np.ndarray, b: np.ndarray, resolution: float) -> tuple[int, np.ndarray]:
+    def decided(self, a: np.ndarray, b: np.ndarray, resolution: float, given: int = 0) -> tuple[int, np.ndarray]:
         """(verdict, rest) of the same motion with the convex pass (world/convex_pass.py, given at construction) on
         what the spheres left, in the same compiled call: verdict as `__call__`'s, and rest (r, dof) the
         configurations neither decided, FCL's to check. The verdicts of `__call__` then `decide_batch`."""
-        return _decided_bound(a, b, resolution, self.ahead, self.bound)
+        return _decided_bound(a, b, resolution, self.ahead, given, self.bound)
 
 
 @numba.njit(cache=True)
@@ -98,10 +99,10 @@ def _bind(*args):
 
 
 @numba.njit(cache=True, nogil=True)
-def _decided_bound(a, b, resolution, ahead, m):
+def _decided_bound(a, b, resolution, ahead, given, m):
     """`_decided_motion` of the arguments bound in m."""
     return _decided_motion(
-        a, b, resolution, ahead, m.lo, m.hi, m.reach, m.layer_reach, m.env_pad, m.map_pad, m.self_pad, m.F,
+        a, b, resolution, ahead, given, m.lo, m.hi, m.reach, m.layer_reach, m.env_pad, m.map_pad, m.self_pad, m.F,
         m.prismatic, m.joints, m.parents, m.tab_i, m.tab_f, m.table, m.local, m.rad, m.first, m.in_local, m.in_rad,
         m.in_first, m.ball_slot, m.ball_c, m.ball_r, m.gf, m.env_mask, m.ob_kind, m.ob_inv, m.ob_dim, m.ob_id,
         m.ob_exact, m.ob_box, m.octree_mask, m.sat, m.csat, m.key_min, m.inv_res, m.pair_a, m.pair_b, m.P, m.D,
@@ -111,13 +112,13 @@ def _decided_bound(a, b, resolution, ahead, m):
 
 @numba.njit(cache=True, nogil=True)
 def _decided_motion(
-    a, b, resolution, ahead, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints, parents,
-    tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask,
-    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b,
-    P, D, pfirst, dfirst, supported, ob_R, ob_t, cpair_a, cpair_b,
+    a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
+    parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
+    env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a,
+    pair_b, P, D, pfirst, dfirst, supported, ob_R, ob_t, cpair_a, cpair_b,
 ):  # fmt: skip
     v, unsure, steps, Q = _sphere_motion(
-        a, b, resolution, ahead, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
+        a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
         parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
         env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a,
         pair_b,
@@ -147,9 +148,10 @@ def _decided_motion(
 
 @numba.njit(cache=True, nogil=True)
 def _sphere_motion(
-    a, b, resolution, ahead, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints, parents,
-    tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask,
-    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b,
+    a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
+    parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
+    env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a,
+    pair_b,
 ):  # fmt: skip
     """(verdict, unsure, steps, Q): BoundMotion's answer and the motion's configurations Q (steps + 1, dof)."""
     travel = 0.0
@@ -164,6 +166,10 @@ def _sphere_motion(
             Q[k, j] = a[j] + k / steps * (b[j] - a[j]) if k < steps else b[j]
     v = np.zeros(steps + 1, np.int8)
     known = np.zeros(steps + 1, np.bool_)  # free for certain without a check of its own
+    ends = np.zeros(steps + 1, np.bool_)  # ends the caller knows free by the exact verdict: nothing to ask
+    if steps > 0:
+        ends[0] = given & 1 != 0
+        ends[steps] = given & 2 != 0
     # anchors every 2J + 1 configurations, checked with every padding grown by `ahead`: free there, the J on
     # each side are free too, as no sphere centre moves more than J steps' travel <= ahead (relative: 2 x, and
     # a self pair's padding grows by 2 x ahead at least)
@@ -192,14 +198,16 @@ def _sphere_motion(
                 seq[m] = k
                 m += 1
     if verdicts(
-        Q, seq[~known[seq]], True, env_pad, map_pad, self_pad, F, prismatic, joints, parents, tab_i, tab_f, table,
-        local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind, ob_inv,
-        ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, v,
+        Q, seq[~(known[seq] | ends[seq])], True, env_pad, map_pad, self_pad, F, prismatic, joints, parents, tab_i,
+        tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind,
+        ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, v,
     ) >= 0:  # fmt: skip
         return -1, np.empty(0, np.int64), steps, Q
     unsure = np.empty(steps + 1, np.int64)
     u = 0
     for k in seq:
+        if ends[k]:
+            continue
         # the always-close pairs' tables are not spheres: a configuration cleared by an anchor still asks them
         if (v[k] == 0 and not known[k]) or (known[k] and tab_i.shape[0] and may_collide_row(Q, k, tab_i, tab_f, table)):
             unsure[u] = k

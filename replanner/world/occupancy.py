@@ -174,9 +174,7 @@ class OccupancyMap:
         ratio = max(1, round(self._broadphase_cell / self.resolution))  # whole voxels per cell
         key_min = self.keys.min(axis=0)
         shape = (self.keys.max(axis=0) - key_min) // ratio + 1
-        grid = count_cells(self.keys, key_min, ratio, shape)
-        sat = np.zeros(tuple(shape + 1), dtype=np.int32)  # summed-volume table with a zero slab in front
-        sat[1:, 1:, 1:] = grid.cumsum(0).cumsum(1).cumsum(2)
+        sat = count_cells(self.keys, key_min, ratio, shape)  # summed-volume table with a zero slab in front
         self._origin = (key_min * self.resolution).astype(np.float64)  # boxes fall inside the first voxel's cell
         self._n = shape.astype(np.int64)
         self._sat = sat.ravel()
