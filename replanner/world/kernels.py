@@ -240,16 +240,23 @@ def count_cells(keys, key_min, ratio, n):
             (keys[i, 0] - key_min[0]) // ratio + 1, (keys[i, 1] - key_min[1]) // ratio + 1,
             (keys[i, 2] - key_min[2]) // ratio + 1,
         ] += 1  # fmt: skip
-    for i in range(1, n[0] + 1):  # the three cumulative sums in one pass each, in place
-        for j in range(1, n[1] + 1):
-            for k in range(1, n[2] + 1):
-                sat[i, j, k] += sat[i, j, k - 1]
-    for i in range(1, n[0] + 1):
-        for j in range(1, n[1] + 1):
-            for k in range(1, n[2] + 1):
-                sat[i, j, k] += sat[i, j - 1, k]
-    for i in range(1, n[0] + 1):
-        for j in range(1, n[1] + 1):
-            for k in range(1, n[2] + 1):
-                sat[i, j, k] += sat[i - 1, j, k]
+    summed_volume(sat)
     return sat
+
+
+@numba.njit(cache=True, nogil=True)
+def summed_volume(t):
+    """t (3-D counts, a zero first plane per axis) becomes its summed-volume table, in place: the cumulative sums
+    along each axis in turn."""
+    n0, n1, n2 = t.shape
+    for a in range(n0):
+        for b in range(n1):
+            for c in range(1, n2):
+                t[a, b, c] += t[a, b, c - 1]
+        for b in range(1, n1):
+            for c in range(n2):
+                t[a, b, c] += t[a, b - 1, c]
+    for a in range(1, n0):
+        for b in range(n1):
+            for c in range(n2):
+                t[a, b, c] += t[a - 1, b, c]

@@ -17,7 +17,7 @@ import numpy as np
 
 from .collision_scene import CollisionScene
 from .geometry import Box, Cylinder, Sphere, padding_directions
-from .kernels import frames_of, kernel_array
+from .kernels import frames_of, kernel_array, summed_volume
 from .occupancy import OccupancyMap
 from .scene import WorldSnapshot
 from .selfcollision import may_collide_row
@@ -206,19 +206,8 @@ def _summed_volumes(k, sat, csat):
         if sat[a, b, c] == 0:
             sat[a, b, c] = 1
             csat[(a - 1) // CBLOCK + 1, (b - 1) // CBLOCK + 1, (c - 1) // CBLOCK + 1] += 1
-    for t in (sat, csat):
-        n0, n1, n2 = t.shape
-        for a in range(n0):
-            for b in range(n1):
-                for c in range(1, n2):
-                    t[a, b, c] += t[a, b, c - 1]
-            for b in range(1, n1):
-                for c in range(n2):
-                    t[a, b, c] += t[a, b - 1, c]
-        for a in range(1, n0):
-            for b in range(n1):
-                for c in range(n2):
-                    t[a, b, c] += t[a - 1, b, c]
+    summed_volume(sat)
+    summed_volume(csat)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
