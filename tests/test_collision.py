@@ -10,6 +10,7 @@ from replanner.bench.scenes import add_table, clutter_map
 from replanner.world.broadphase import hull_apart
 from replanner.world.collision import OCTREE, CollisionChecker
 from replanner.world.geometry import Box, Cylinder, Sphere, padded_geometry, padded_vertices, to_fcl
+from replanner.world.hull_graph import edge_graph
 from replanner.world.kernels import boxes_apart
 from replanner.world.scene import World
 from replanner.world.transforms import make_transform
@@ -256,7 +257,9 @@ def test_the_hull_cull_never_parts_a_link_from_a_box_fcl_finds_touching(panda):
         hit = fcl.collide(fcl.CollisionObject(geom, fcl.Transform(T[0, 0, :3, :3], T[0, 0, :3, 3])),
                           fcl.CollisionObject(fcl.Box(*(2 * half)), fcl.Transform(Ro, np.zeros(3))),
                           fcl.CollisionRequest()) > 0  # fmt: skip
-        apart = hull_apart(T, 0, 0, V, 0, len(V), Ro[None], np.zeros((1, 3)), half[None], 0)
+        first, nb, start = edge_graph([V])
+        hint = np.full((1, 6), start[0])
+        apart = hull_apart(T, 0, 0, V, Ro[None], np.zeros((1, 3)), half[None], 0, first, nb, hint)
         assert not (hit and apart), i
         touching += hit
         centre = T[0, 0, :3, :3] @ c + T[0, 0, :3, 3]

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import fcl
 import numpy as np
+import pytest
 
 from replanner.bench.scenes import add_table, clutter_map
 from replanner.world.collision import CollisionChecker
 from replanner.world.convex_pass import decide_batch
 from replanner.world.geometry import Box, ConvexHull, Cylinder, Sphere, padded, padding_directions, to_fcl
 from replanner.world.gjk import APART, BAND, POINTS, TOUCH, decide
+from replanner.world.hull_graph import climb, edge_graph
 from replanner.world.layered import FastChecker
 from replanner.world.scene import World
 from replanner.world.sphere_layer import FREE, UNSURE
@@ -20,6 +22,7 @@ def test_gjk_says_apart_or_touching_as_fcl_does_on_random_shapes():
     rng = np.random.default_rng(11)
     ico = padding_directions()
     counts = {APART: 0, TOUCH: 0, BAND: 0}
+    climbed_differently = 0
     S, small = np.empty((4, 3)), np.empty(3)
     for i in range(3000):
         pts = rng.normal(size=(int(rng.integers(4, 40)), 3)) * rng.uniform(0.02, 0.15, 3)
@@ -39,17 +42,23 @@ def test_gjk_says_apart_or_touching_as_fcl_does_on_random_shapes():
             dims = np.array([prim.radius, prim.length / 2, 0.0])
         V = np.ascontiguousarray(np.vstack([hull.vertices, ico]))
         nv = len(hull.vertices)
-        r = decide(
-            POINTS, Ta[:3, :3], Ta[:3, 3], np.zeros(3), V, 0, nv, V, nv, len(V), pad,
-            kind, np.ascontiguousarray(Tb[:3, :3]), np.ascontiguousarray(Tb[:3, 3]), dims, 0, 0, 0, 0, 0.0, 1e-6, S,
-            small,
-        )  # fmt: skip
+        first, nb, start = edge_graph([hull.vertices])
         a = fcl.CollisionObject(to_fcl(padded(hull, pad)), fcl.Transform(Ta[:3, :3], Ta[:3, 3]))
         b = fcl.CollisionObject(to_fcl(prim), fcl.Transform(Tb[:3, :3], Tb[:3, 3]))
         meets = fcl.collide(a, b, fcl.CollisionRequest(), fcl.CollisionResult())
-        counts[r] += 1
-        assert not (r == APART and meets), (i, "apart for GJK, in contact for FCL")
-        assert not (r == TOUCH and not meets), (i, "in contact for GJK, apart for FCL")
+        verdicts = []
+        for h in (-1, 0):  # every point read, then the supports climbed along the hull's edges
+            r = decide(
+                POINTS, Ta[:3, :3], Ta[:3, 3], np.zeros(3), V, 0, nv, V, nv, len(V), pad,
+                kind, np.ascontiguousarray(Tb[:3, :3]), np.ascontiguousarray(Tb[:3, 3]), dims, 0, 0, 0, 0, 0.0, 1e-6, S,
+                small, first, nb, start.copy(), h, -1,
+            )  # fmt: skip
+            assert not (r == APART and meets), (i, h, "apart for GJK, in contact for FCL")
+            assert not (r == TOUCH and not meets), (i, h, "in contact for GJK, apart for FCL")
+            verdicts.append(r)
+        counts[verdicts[0]] += 1
+        climbed_differently += verdicts[0] != verdicts[1]
+    assert climbed_differently <= 3, climbed_differently  # only ties between equally far points may differ
     assert counts[APART] > 500 and counts[TOUCH] > 500, counts
     assert counts[BAND] <= 3, counts  # only shapes within a micrometre of touching are left to FCL
 
@@ -81,3 +90,19 @@ def test_the_convex_pass_decides_what_the_spheres_cannot_as_fcl_does(profile):
             if occ is None:  # without a map, the pass decides nearly all the spheres could not
                 assert (verdict == 0).sum() <= 0.01 * len(unsure), ((verdict == 0).sum(), len(unsure))
             np.testing.assert_array_equal(fast.is_valid_batch(Q), checker.is_valid_batch(Q))
+
+
+def test_a_support_climbed_along_hull_edges_is_the_farthest_point():
+    """climb's answer against every point read, on random hulls of 4-400 points, flat and tiny sets included."""
+    rng = np.random.default_rng(21)
+    sets = [rng.normal(size=(int(rng.integers(4, 400)), 3)) * rng.uniform(0.005, 0.2, 3) for _ in range(60)]
+    sets += [np.c_[rng.normal(size=(20, 2)), np.zeros(20)], np.zeros((1, 3)), rng.normal(size=(3, 3))]
+    first, nb, start = edge_graph(sets)
+    P = np.vstack(sets)
+    offsets = np.cumsum([0] + [len(s) for s in sets])
+    for i, pts in enumerate(sets):
+        k = start[i]
+        for d in rng.normal(size=(200, 3)):
+            k, value = climb(P, first, nb, k, *d)  # from the last answer, as GJK and the broadphase climb
+            assert offsets[i] <= k < offsets[i + 1]
+            assert value == pytest.approx((pts @ d).max(), abs=1e-12)

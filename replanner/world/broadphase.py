@@ -7,6 +7,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .hull_graph import climb
 from .kernels import box_centre, box_hits_table, boxes_apart, frames_of, place_body, world_box
 from .selfcollision import pair_maybe
 
@@ -15,9 +16,10 @@ GAP = 1e-9  # [m] a hull parted from a box by less is left to FCL
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def hull_apart(T, n, b, V, v0, v1, obs_R, obs_c, obs_h, o) -> bool:
-    """Whether one of obstacle o's box axes parts it from body b's hull (vertices V[v0:v1] in its frame, at pose
-    T[n, b]): the hull's support along the axis, exact, against the box's half extent."""
+def hull_apart(T, n, b, V, obs_R, obs_c, obs_h, o, first, nb, hint) -> bool:
+    """Whether one of obstacle o's box axes parts it from body b's hull (vertices V in its frame, edges first, nb:
+    hull_graph.edge_graph, at pose T[n, b]): the hull's support along the axis, exact, against the box's half extent,
+    climbed from hint[b] (6: the last lows and highs per axis, hull vertices; left at the answers)."""
     for k in range(3):
         # the axis in the body's frame, and the body origin's offset from the box centre along it
         u0 = T[n, b, 0, 0] * obs_R[o, 0, k] + T[n, b, 1, 0] * obs_R[o, 1, k] + T[n, b, 2, 0] * obs_R[o, 2, k]
@@ -28,11 +30,11 @@ def hull_apart(T, n, b, V, v0, v1, obs_R, obs_c, obs_h, o) -> bool:
             + (T[n, b, 1, 3] - obs_c[o, 1]) * obs_R[o, 1, k]
             + (T[n, b, 2, 3] - obs_c[o, 2]) * obs_R[o, 2, k]
         )
-        lo, hi = np.inf, -np.inf
-        for i in range(v0, v1):
-            p = V[i, 0] * u0 + V[i, 1] * u1 + V[i, 2] * u2
-            lo, hi = min(lo, p), max(hi, p)
-        if base + lo > obs_h[o, k] + GAP or base + hi < -obs_h[o, k] - GAP:
+        hint[b, 2 * k], low = climb(V, first, nb, hint[b, 2 * k], -u0, -u1, -u2)
+        if base - low > obs_h[o, k] + GAP:
+            return True
+        hint[b, 2 * k + 1], high = climb(V, first, nb, hint[b, 2 * k + 1], u0, u1, u2)
+        if base + high < -obs_h[o, k] - GAP:
             return True
     return False
 
@@ -50,8 +52,8 @@ def _push(tests, m, n, kind, a, b):
 @numba.njit(cache=True, nogil=True)
 def broadphase(
     Q, F, prismatic, joints, parents, slot, off, box_c, box_h, octree_mask, origin, inv_cell, ncell, sat, objects,
-    env_mask, obs_lo, obs_hi, obs_R, obs_c, obs_h, hull_v, hull_first, pair_a, pair_b, pair_tab, k0, tab_i, tab_f,
-    table, T, tests,
+    env_mask, obs_lo, obs_hi, obs_R, obs_c, obs_h, hull_v, hull_first, hull_edges, hull_nb, hull_start, pair_a, pair_b,
+    pair_tab, k0, tab_i, tab_f, table, T, tests,
 ):  # fmt: skip
     """T[n] = the body poses (B, 4, 4) of configuration Q[n] (body b: frame slot[b] times off[b]); returns `tests`
     (grown when full) and the count of its rows (n, kind, a, b) filled, the pairs whose boxes meet, per
@@ -61,7 +63,8 @@ def broadphase(
       one cell: no map) and octree_mask[a];
     - OBJECT (when `objects`): body a's world box (box_c[0], box_h[0]) meets obstacle b's, world-aligned (obs_lo,
       obs_hi) and oriented (obs_R, obs_c, obs_h), the hull FCL is given for body a (hull_v[hull_first[a]:hull_first[a
-      + 1]], body frame; none: not asked) reaches the box on each of its axes, and env_mask[a, b];
+      + 1]], body frame, edges hull_edges, hull_nb from hull_start[a]: hull_graph.edge_graph; none: not asked)
+      reaches the box on each of its axes, and env_mask[a, b];
     - SELF: pairs k >= k0 (pair_a[k], pair_b[k]): pair_tab[k] >= 0 asks its clearance table (tab_i, tab_f, table),
       the others their self boxes (box_c[1], box_h[1]), world-aligned, then oriented.
     """
@@ -71,6 +74,9 @@ def broadphase(
     R, A = np.empty((3, 3)), np.empty((3, 3))
     t, wa, wb = np.empty(3), np.empty(3), np.empty(3)
     with_map = sat.shape[0] > 1
+    hint = np.empty((B, 6), np.int64)  # each hull's last support points: the next configuration's starts
+    for b in range(B):
+        hint[b, :] = hull_start[b]
     m = 0
     for n in range(N):
         frames_of(Q, n, F, prismatic, joints, parents, frames, 0)
@@ -102,7 +108,7 @@ def broadphase(
                     if boxes_apart(T[n, b], wa, box_h[0, b], obs_R[o], obs_c[o], obs_h[o], R, A, t):
                         continue
                     if hull_first[b + 1] > hull_first[b] and hull_apart(
-                        T, n, b, hull_v, hull_first[b], hull_first[b + 1], obs_R, obs_c, obs_h, o
+                        T, n, b, hull_v, obs_R, obs_c, obs_h, o, hull_edges, hull_nb, hint
                     ):
                         continue
                     tests, m = _push(tests, m, n, OBJECT, b, o)

@@ -321,8 +321,8 @@ class CollisionChecker:
         args = (
             *self.robot.chain, scene.body_slot, scene.body_off, scene.box_c, scene.box_h, scene.octree_mask, *table,
             not octree_only, scene.env_mask, scene.obs_lo, scene.obs_hi, scene.obs_R, scene.obs_c, scene.obs_h,
-            scene.hull_v, scene.hull_first, scene.pair_a, scene.pair_b, scene.pair_tab, k0, scene.tables.packed_i,
-            scene.tables.packed_f, scene.tables.lookup,
+            scene.hull_v, scene.hull_first, scene.hull_edges, scene.hull_nb, scene.hull_start, scene.pair_a,
+            scene.pair_b, scene.pair_tab, k0, scene.tables.packed_i, scene.tables.packed_f, scene.tables.lookup,
         )  # fmt: skip
 
         def tests_of(a: int, b: int):  # rows a:b (the broadphase releases the GIL)

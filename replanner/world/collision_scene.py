@@ -13,6 +13,7 @@ import fcl
 import numpy as np
 
 from .geometry import Shape, bounding_radius, padded_geometry, padded_vertices
+from .hull_graph import edge_graph
 from .kernels import body_poses
 from .robot import RobotModel
 from .scene import WorldSnapshot
@@ -130,6 +131,7 @@ class CollisionScene:
         hulls = [padded_vertices(b.raw_shape, padding) for b in bodies]
         self.hull_v = np.ascontiguousarray(np.concatenate(hulls), dtype=np.float64)
         self.hull_first = np.concatenate([[0], np.cumsum([len(v) for v in hulls])]).astype(np.int64)
+        self.hull_edges, self.hull_nb, self.hull_start = edge_graph(hulls)  # their supports climb the edges
         # bounding balls of the unpadded bodies: centre (B, 4, 1) homogeneous in the body frame, radius (B,)
         self.ball_c = np.stack([np.append(b.raw_box[0], 1.0) for b in bodies])[..., None]
         self.ball_r = np.array([ball_radius(b.raw_shape, b.raw_box[0]) for b in bodies])

@@ -11,6 +11,7 @@ import numpy as np
 from .collision_scene import CollisionScene
 from .geometry import Box, ConvexHull, Mesh, padding_directions
 from .gjk import APART, POINTS, TOUCH, decide
+from .hull_graph import edge_graph
 from .sphere_layer import (
     SphereScene,
     _place,
@@ -36,7 +37,7 @@ class ConvexPass:
 
     def __init__(self, robot, scene: CollisionScene, layer: SphereScene):
         ico = padding_directions()
-        P, D, pf, df, supported = [], [], [0], [0], []
+        P, D, pf, df, supported, pts_of = [], [], [0], [0], [], []
         for b in scene.bodies:
             s, off = robot.frame_offset(b.link)
             T = off @ b.T_link_body
@@ -49,12 +50,14 @@ class ConvexPass:
                 pts, dirs = np.zeros((1, 3)), np.zeros((0, 3))  # balls, cylinders, concave meshes: FCL's
             supported.append(len(dirs) > 0)
             P.append(pts @ T[:3, :3].T + T[:3, 3])
+            pts_of.append(P[-1])
             D.append(dirs @ T[:3, :3].T)
             pf.append(pf[-1] + len(pts))
             df.append(df[-1] + len(dirs))
         self.P, self.D = np.ascontiguousarray(np.vstack(P)), np.ascontiguousarray(np.vstack(D).reshape(-1, 3))
         self.pfirst, self.dfirst = np.array(pf, np.int64), np.array(df, np.int64)
         self.supported = np.array(supported, np.bool_)
+        self.hv_first, self.hv_nb, self.hv_start = edge_graph(pts_of)  # GJK's supports climb the hulls' edges
         # primitives: shape -> world (the inverse of the sphere layer's world -> shape)
         R = np.transpose(layer.ob_inv[:, :, :3], (0, 2, 1))
         t = -np.einsum("oij,oj->oi", R, layer.ob_inv[:, :, 3])
@@ -73,7 +76,7 @@ def decide_batch(
         cp.supported, layer.env_pad, layer.self_pad, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b, layer.local, layer.radius,
         layer.first, layer.ball_slot, layer.ball_c, layer.ball_r, layer.gf, layer.map_pad, layer.env_mask,
         layer.ob_kind, layer.ob_inv, layer.ob_dim, layer.ob_id, layer.ob_exact, layer.octree_mask, vol.sat,
-        vol.csat, vol.key_min, vol.inv_res,
+        vol.csat, vol.key_min, vol.inv_res, cp.hv_first, cp.hv_nb, cp.hv_start,
     )  # fmt: skip
     return out
 
@@ -88,9 +91,10 @@ def _merge(verdict, r):
 def _decide_all(
     frames, idx, out, stop, P, D, pfirst, dfirst, supported, env_pad, self_pad, ob_R, ob_t, pair_a, pair_b,
     local, rad, first, ball_slot, ball_c, ball_r, gf, map_pad, env_mask,
-    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, csat, key_min, inv_res,
+    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, csat, key_min, inv_res, hv_first, hv_nb, hv_start,
 ):  # fmt: skip
     B, O = ball_slot.shape[0], ob_kind.shape[0]
+    hint = hv_start.copy()  # each body's last support point: the next configuration's start
     BC, C = np.empty((B, 3)), np.empty((local.shape[0], 3))
     sel = np.empty(local.shape[0], np.int64)
     S, small, none = np.empty((4, 3)), np.empty(3), np.zeros(3)
@@ -120,7 +124,8 @@ def _decide_all(
                     continue
                 r = decide(
                     POINTS, F[:3, :3], F[:3, 3], none, P, pfirst[b], pfirst[b + 1], D, dfirst[b], dfirst[b + 1],
-                    env_pad, ob_kind[o], ob_R[o], ob_t[o], ob_dim[o], 0, 0, 0, 0, 0.0, TOL, S, small,
+                    env_pad, ob_kind[o], ob_R[o], ob_t[o], ob_dim[o], 0, 0, 0, 0, 0.0, TOL, S, small, hv_first, hv_nb,
+                    hint, b, -1,
                 )  # fmt: skip
                 verdict = _merge(verdict, r)
                 if verdict == -1:
@@ -155,7 +160,7 @@ def _decide_all(
                 r = decide(
                     POINTS, Fa[:3, :3], Fa[:3, 3], none, P, pfirst[a], pfirst[a + 1], D, dfirst[a], dfirst[a + 1],
                     self_pad, POINTS, Fb[:3, :3], Fb[:3, 3], none, pfirst[b], pfirst[b + 1], dfirst[b], dfirst[b + 1],
-                    self_pad, TOL, S, small,
+                    self_pad, TOL, S, small, hv_first, hv_nb, hint, a, b,
                 )  # fmt: skip
                 verdict = _merge(verdict, r)
                 if verdict == -1:

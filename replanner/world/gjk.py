@@ -11,6 +11,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .hull_graph import climb
+
 APART, TOUCH, BAND = 1, -1, 0  # what `decide` says of two shapes
 POINTS, BOX, BALL, CYLINDER = 3, 0, 1, 2  # shape kinds (the primitives' numbers are sphere_layer's)
 MAX_ITER = 64
@@ -37,19 +39,24 @@ def _cross(a, b):
 
 
 @numba.njit(cache=True, nogil=True)
-def support(kind, R, t, dims, P, p0, p1, D, d0, d1, pad, d):
+def support(kind, R, t, dims, P, p0, p1, D, d0, d1, pad, d, first, nb, hint, h):
     """The point of a shape farthest along world direction d. R (3, 3), t (3,): shape -> world; POINTS: the points
-    P[p0:p1] plus pad times the farthest of D[d0:d1] (shape frame); BOX: half extents dims; BALL: radius dims[0];
-    CYLINDER: radius dims[0], half length dims[1] along z."""
+    P[p0:p1] plus pad times the farthest of D[d0:d1] (shape frame), found by climbing the hull edges first, nb
+    (hull_graph.edge_graph) from hint[h], which is left at the answer (h < 0: every point is read); BOX: half
+    extents dims; BALL: radius dims[0]; CYLINDER: radius dims[0], half length dims[1] along z."""
     x = R[0, 0] * d[0] + R[1, 0] * d[1] + R[2, 0] * d[2]
     y = R[0, 1] * d[0] + R[1, 1] * d[1] + R[2, 1] * d[2]
     z = R[0, 2] * d[0] + R[1, 2] * d[1] + R[2, 2] * d[2]
     if kind == POINTS:
-        best, k = -np.inf, p0
-        for i in range(p0, p1):
-            s = P[i, 0] * x + P[i, 1] * y + P[i, 2] * z
-            if s > best:
-                best, k = s, i
+        if h >= 0:
+            k, _ = climb(P, first, nb, hint[h], x, y, z)
+            hint[h] = k
+        else:
+            best, k = -np.inf, p0
+            for i in range(p0, p1):
+                s = P[i, 0] * x + P[i, 1] * y + P[i, 2] * z
+                if s > best:
+                    best, k = s, i
         sx, sy, sz = P[k, 0], P[k, 1], P[k, 2]
         if pad != 0.0 and d1 > d0:
             best, k = -np.inf, d0
@@ -180,15 +187,15 @@ def _keep(S, a, b, c, m):
 @numba.njit(cache=True, nogil=True)
 def _apart(
     ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada,
-    kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S,
+    kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S, first, nb, hint, ha, hb,
 ):  # fmt: skip
     """1: apart by more than tol for certain; -1: they meet (origin inside the difference); 0: undecided."""
     d = (tb[0] - ta[0], tb[1] - ta[1], tb[2] - ta[2])  # from a toward b: a first point near the closest
     if d[0] == 0.0 and d[1] == 0.0 and d[2] == 0.0:
         d = (1.0, 0.0, 0.0)
     v = _sub(
-        support(ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, d),
-        support(kb, Rb, tb, dimsb, P, pb0, pb1, D, db0, db1, padb, (-d[0], -d[1], -d[2])),
+        support(ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, d, first, nb, hint, ha),
+        support(kb, Rb, tb, dimsb, P, pb0, pb1, D, db0, db1, padb, (-d[0], -d[1], -d[2]), first, nb, hint, hb),
     )
     S[0, 0], S[0, 1], S[0, 2] = v
     k = 1
@@ -198,8 +205,8 @@ def _apart(
             return -1
         n = (-v[0], -v[1], -v[2])
         w = _sub(
-            support(ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, n),
-            support(kb, Rb, tb, dimsb, P, pb0, pb1, D, db0, db1, padb, (v[0], v[1], v[2])),
+            support(ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, n, first, nb, hint, ha),
+            support(kb, Rb, tb, dimsb, P, pb0, pb1, D, db0, db1, padb, (v[0], v[1], v[2]), first, nb, hint, hb),
         )
         vw = _dot(v, w)
         if vw > tol * np.sqrt(vv):  # a separating plane with a gap of more than tol: the distance is above it
@@ -220,10 +227,14 @@ def _apart(
 @numba.njit(cache=True, nogil=True)
 def decide(
     ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada,
-    kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S, dims_small,
+    kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S, dims_small, first, nb, hint, ha, hb,
 ):  # fmt: skip
-    """APART (more than tol apart), TOUCH (they meet even with b shrunk by tol), or BAND (let FCL decide)."""
-    r = _apart(ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S)
+    """APART (more than tol apart), TOUCH (they meet even with b shrunk by tol), or BAND (let FCL decide).
+    first, nb, hint, ha, hb: `support`'s climb for a and b (ha, hb < 0: every point read)."""
+    r = _apart(
+        ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S, first,
+        nb, hint, ha, hb,
+    )  # fmt: skip
     if r == 1:
         return APART
     # shrink b by tol: primitives' dimensions, or a body's padding
@@ -241,6 +252,7 @@ def decide(
         if dims_small[0] <= 0.0 or (kb == CYLINDER and dims_small[1] <= 0.0):
             return BAND
     r = _apart(
-        ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, kb, Rb, tb, dims_small, pb0, pb1, db0, db1, small_pad, 0.0, S
+        ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, kb, Rb, tb, dims_small, pb0, pb1, db0, db1, small_pad, 0.0,
+        S, first, nb, hint, ha, hb,
     )  # fmt: skip
     return TOUCH if r == -1 else BAND

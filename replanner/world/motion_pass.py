@@ -26,7 +26,7 @@ _FIELDS = (
     "tab_i", "tab_f", "table", "local", "rad", "first", "in_local", "in_rad", "in_first", "ball_slot", "ball_c",
     "ball_r", "gf", "env_mask", "ob_kind", "ob_inv", "ob_dim", "ob_id", "ob_exact", "ob_box", "octree_mask", "sat",
     "csat", "key_min", "inv_res", "pair_a", "pair_b", "P", "D", "pfirst", "dfirst", "supported", "ob_R", "ob_t",
-    "cpair_a", "cpair_b",
+    "cpair_a", "cpair_b", "hv_first", "hv_nb", "hv_start",
 )  # fmt: skip
 
 
@@ -69,7 +69,8 @@ class BoundMotion:
         )  # fmt: skip
         cp = convex
         self.bound = None if cp is None else _bind(
-            *self.args, cp.P, cp.D, cp.pfirst, cp.dfirst, cp.supported, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b
+            *self.args, cp.P, cp.D, cp.pfirst, cp.dfirst, cp.supported, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b,
+            cp.hv_first, cp.hv_nb, cp.hv_start,
         )  # fmt: skip
 
     def with_ahead(self, ahead: float) -> BoundMotion:
@@ -106,7 +107,7 @@ def _decided_bound(a, b, resolution, ahead, given, m):
         m.prismatic, m.joints, m.parents, m.tab_i, m.tab_f, m.table, m.local, m.rad, m.first, m.in_local, m.in_rad,
         m.in_first, m.ball_slot, m.ball_c, m.ball_r, m.gf, m.env_mask, m.ob_kind, m.ob_inv, m.ob_dim, m.ob_id,
         m.ob_exact, m.ob_box, m.octree_mask, m.sat, m.csat, m.key_min, m.inv_res, m.pair_a, m.pair_b, m.P, m.D,
-        m.pfirst, m.dfirst, m.supported, m.ob_R, m.ob_t, m.cpair_a, m.cpair_b,
+        m.pfirst, m.dfirst, m.supported, m.ob_R, m.ob_t, m.cpair_a, m.cpair_b, m.hv_first, m.hv_nb, m.hv_start,
     )  # fmt: skip
 
 
@@ -115,7 +116,7 @@ def _decided_motion(
     a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
     parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
     env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a,
-    pair_b, P, D, pfirst, dfirst, supported, ob_R, ob_t, cpair_a, cpair_b,
+    pair_b, P, D, pfirst, dfirst, supported, ob_R, ob_t, cpair_a, cpair_b, hv_first, hv_nb, hv_start,
 ):  # fmt: skip
     v, unsure, steps, Q = _sphere_motion(
         a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
@@ -133,7 +134,7 @@ def _decided_motion(
     _decide_all(
         frames, np.arange(u), out, True, P, D, pfirst, dfirst, supported, env_pad, self_pad, ob_R, ob_t, cpair_a,
         cpair_b, local, rad, first, ball_slot, ball_c, ball_r, gf, map_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id,
-        ob_exact, octree_mask, sat, csat, key_min, inv_res,
+        ob_exact, octree_mask, sat, csat, key_min, inv_res, hv_first, hv_nb, hv_start,
     )  # fmt: skip
     rest = np.empty((u, a.shape[0]))
     r = 0
