@@ -93,12 +93,15 @@ def test_the_convex_pass_decides_what_the_spheres_cannot_as_fcl_does(profile):
 
 
 def test_a_support_climbed_along_hull_edges_is_the_farthest_point():
-    """climb's answer against every point read, on random hulls of 4-400 points, flat and tiny sets included."""
+    """climb's answer against every point read, on random hulls of 4-400 points, flat, collinear and tiny sets
+    included."""
     rng = np.random.default_rng(21)
     sets = [rng.normal(size=(int(rng.integers(4, 400)), 3)) * rng.uniform(0.005, 0.2, 3) for _ in range(60)]
-    sets += [np.c_[rng.normal(size=(20, 2)), np.zeros(20)], np.zeros((1, 3)), rng.normal(size=(3, 3))]
+    sets += [np.c_[rng.normal(size=(k, 2)), np.zeros(k)] for k in (20, 2000)]  # flat: hulled joggled
+    sets += [np.c_[rng.normal(size=(50, 1)), np.zeros((50, 2))], np.zeros((1, 3)), rng.normal(size=(3, 3))]
     first, nb, start = edge_graph(sets)
     P = np.vstack(sets)
+    assert len(nb) < 20 * len(P)  # a hull's edges, not every pair of a flat set's points
     offsets = np.cumsum([0] + [len(s) for s in sets])
     for i, pts in enumerate(sets):
         k = start[i]

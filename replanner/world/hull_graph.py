@@ -15,7 +15,7 @@ from scipy.spatial import ConvexHull, QhullError
 def edge_graph(points: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The hull edges of each point set, over the sets stacked in order: (first (N + 1,), nb (E,), start (S,)), the
     neighbours of point i nb[first[i]:first[i + 1]] (indices into the stack), and each set's start, a hull vertex
-    (-1: an empty set). A set Qhull cannot hull (flat, or under 4 points) gets every pair of its points as edges."""
+    (-1: an empty set). A flat set is hulled joggled; one of under 4 points gets every pair of its points as edges."""
     edges, start, base = [], [], 0
     for P in points:
         P = np.ascontiguousarray(P, np.float64).reshape(-1, 3)
@@ -33,11 +33,17 @@ def _edges_of(blob: bytes) -> tuple[np.ndarray, int]:
     """(edges (E, 2) both ways, sorted by their first point; a hull vertex) of the points in `blob` (float64 x 3)."""
     P = np.frombuffer(blob, np.float64).reshape(-1, 3)
     n = len(P)
-    try:
-        hull = ConvexHull(P)
+    hull = None
+    for options in (None, "QJ"):  # a flat set is hulled joggled (by ~1e-11 of its size: far below GJK's tolerance)
+        try:
+            hull = ConvexHull(P, qhull_options=options)
+            break
+        except (QhullError, ValueError):
+            continue
+    if hull is not None:
         tri = hull.simplices.astype(np.int64)
         e, s = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), int(hull.vertices[0])
-    except (QhullError, ValueError):  # degenerate: a climb over every point is the exhaustive scan
+    else:  # under 4 points: a climb over every point is the exhaustive scan
         e, s = np.stack(np.triu_indices(n, 1), axis=1).astype(np.int64), 0
     key = np.unique(np.concatenate([e[:, 0] * n + e[:, 1], e[:, 1] * n + e[:, 0]]))
     out = np.stack([key // max(n, 1), key % max(n, 1)], axis=1)
