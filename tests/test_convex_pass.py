@@ -22,7 +22,6 @@ def test_gjk_says_apart_or_touching_as_fcl_does_on_random_shapes():
     rng = np.random.default_rng(11)
     ico = padding_directions()
     counts = {APART: 0, TOUCH: 0, BAND: 0}
-    climbed_differently = 0
     S, small = np.empty((4, 3)), np.empty(3)
     for i in range(3000):
         pts = rng.normal(size=(int(rng.integers(4, 40)), 3)) * rng.uniform(0.02, 0.15, 3)
@@ -46,19 +45,14 @@ def test_gjk_says_apart_or_touching_as_fcl_does_on_random_shapes():
         a = fcl.CollisionObject(to_fcl(padded(hull, pad)), fcl.Transform(Ta[:3, :3], Ta[:3, 3]))
         b = fcl.CollisionObject(to_fcl(prim), fcl.Transform(Tb[:3, :3], Tb[:3, 3]))
         meets = fcl.collide(a, b, fcl.CollisionRequest(), fcl.CollisionResult())
-        verdicts = []
-        for h in (-1, 0):  # every point read, then the supports climbed along the hull's edges
-            r = decide(
-                POINTS, Ta[:3, :3], Ta[:3, 3], np.zeros(3), V, 0, nv, V, nv, len(V), pad,
-                kind, np.ascontiguousarray(Tb[:3, :3]), np.ascontiguousarray(Tb[:3, 3]), dims, 0, 0, 0, 0, 0.0, 1e-6, S,
-                small, first, nb, start.copy(), h, -1,
-            )  # fmt: skip
-            assert not (r == APART and meets), (i, h, "apart for GJK, in contact for FCL")
-            assert not (r == TOUCH and not meets), (i, h, "in contact for GJK, apart for FCL")
-            verdicts.append(r)
-        counts[verdicts[0]] += 1
-        climbed_differently += verdicts[0] != verdicts[1]
-    assert climbed_differently <= 3, climbed_differently  # only ties between equally far points may differ
+        r = decide(
+            POINTS, Ta[:3, :3], Ta[:3, 3], np.zeros(3), V, 0, nv, V, nv, len(V), pad,
+            kind, np.ascontiguousarray(Tb[:3, :3]), np.ascontiguousarray(Tb[:3, 3]), dims, 0, 0, 0, 0, 0.0, 1e-6, S,
+            small, first, nb, start.copy(), 0, -1,
+        )  # fmt: skip
+        counts[r] += 1
+        assert not (r == APART and meets), (i, "apart for GJK, in contact for FCL")
+        assert not (r == TOUCH and not meets), (i, "in contact for GJK, apart for FCL")
     assert counts[APART] > 500 and counts[TOUCH] > 500, counts
     assert counts[BAND] <= 3, counts  # only shapes within a micrometre of touching are left to FCL
 

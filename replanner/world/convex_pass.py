@@ -37,7 +37,7 @@ class ConvexPass:
 
     def __init__(self, robot, scene: CollisionScene, layer: SphereScene):
         ico = padding_directions()
-        P, D, pf, df, supported, pts_of = [], [], [0], [0], [], []
+        P, D, pf, df, supported = [], [], [0], [0], []
         for b in scene.bodies:
             s, off = robot.frame_offset(b.link)
             T = off @ b.T_link_body
@@ -50,14 +50,13 @@ class ConvexPass:
                 pts, dirs = np.zeros((1, 3)), np.zeros((0, 3))  # balls, cylinders, concave meshes: FCL's
             supported.append(len(dirs) > 0)
             P.append(pts @ T[:3, :3].T + T[:3, 3])
-            pts_of.append(P[-1])
             D.append(dirs @ T[:3, :3].T)
             pf.append(pf[-1] + len(pts))
             df.append(df[-1] + len(dirs))
         self.P, self.D = np.ascontiguousarray(np.vstack(P)), np.ascontiguousarray(np.vstack(D).reshape(-1, 3))
         self.pfirst, self.dfirst = np.array(pf, np.int64), np.array(df, np.int64)
         self.supported = np.array(supported, np.bool_)
-        self.hv_first, self.hv_nb, self.hv_start = edge_graph(pts_of)  # GJK's supports climb the hulls' edges
+        self.hv_first, self.hv_nb, self.hv_start = edge_graph(P)  # GJK's supports climb the hulls' edges
         # primitives: shape -> world (the inverse of the sphere layer's world -> shape)
         R = np.transpose(layer.ob_inv[:, :, :3], (0, 2, 1))
         t = -np.einsum("oij,oj->oi", R, layer.ob_inv[:, :, 3])

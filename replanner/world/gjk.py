@@ -42,21 +42,14 @@ def _cross(a, b):
 def support(kind, R, t, dims, P, p0, p1, D, d0, d1, pad, d, first, nb, hint, h):
     """The point of a shape farthest along world direction d. R (3, 3), t (3,): shape -> world; POINTS: the points
     P[p0:p1] plus pad times the farthest of D[d0:d1] (shape frame), found by climbing the hull edges first, nb
-    (hull_graph.edge_graph) from hint[h], which is left at the answer (h < 0: every point is read); BOX: half
-    extents dims; BALL: radius dims[0]; CYLINDER: radius dims[0], half length dims[1] along z."""
+    (hull_graph.edge_graph) from hint[h], which is left at the answer; BOX: half extents dims; BALL: radius dims[0];
+    CYLINDER: radius dims[0], half length dims[1] along z."""
     x = R[0, 0] * d[0] + R[1, 0] * d[1] + R[2, 0] * d[2]
     y = R[0, 1] * d[0] + R[1, 1] * d[1] + R[2, 1] * d[2]
     z = R[0, 2] * d[0] + R[1, 2] * d[1] + R[2, 2] * d[2]
     if kind == POINTS:
-        if h >= 0:
-            k, _ = climb(P, first, nb, hint[h], x, y, z)
-            hint[h] = k
-        else:
-            best, k = -np.inf, p0
-            for i in range(p0, p1):
-                s = P[i, 0] * x + P[i, 1] * y + P[i, 2] * z
-                if s > best:
-                    best, k = s, i
+        k, _ = climb(P, first, nb, hint[h], x, y, z)
+        hint[h] = k
         sx, sy, sz = P[k, 0], P[k, 1], P[k, 2]
         if pad != 0.0 and d1 > d0:
             best, k = -np.inf, d0
@@ -230,7 +223,7 @@ def decide(
     kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S, dims_small, first, nb, hint, ha, hb,
 ):  # fmt: skip
     """APART (more than tol apart), TOUCH (they meet even with b shrunk by tol), or BAND (let FCL decide).
-    first, nb, hint, ha, hb: `support`'s climb for a and b (ha, hb < 0: every point read)."""
+    first, nb, hint, ha, hb: `support`'s climb for a and b (their slots in hint; a primitive's is not read)."""
     r = _apart(
         ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S, first,
         nb, hint, ha, hb,
