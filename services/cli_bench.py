@@ -193,6 +193,9 @@ def bench_planning(
     layer: str = typer.Option(
         None, help="Collision layer of the search: 'spheres' or 'fcl' (default: the config's planning.collision_layer)."
     ),
+    person: bool = typer.Option(
+        False, help="A person-sized column of voxels beside each problem, a fresh map each plan (a planning job's)."
+    ),
     load: LoadOpt = 0,
     as_json: JsonOpt = False,
 ) -> None:
@@ -217,6 +220,7 @@ def bench_planning(
             deadline=deadline,
             verify_all=verify,
             families=chosen,
+            person=person,
         ),
     )
     if as_json:

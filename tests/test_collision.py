@@ -12,6 +12,7 @@ from replanner.world.collision import OCTREE, CollisionChecker
 from replanner.world.geometry import Box, Cylinder, Sphere, padded_geometry, padded_vertices, to_fcl
 from replanner.world.hull_graph import edge_graph
 from replanner.world.kernels import boxes_apart
+from replanner.world.occupancy import OccupancyMap
 from replanner.world.scene import World
 from replanner.world.transforms import make_transform
 from tests.oracle import HULL_MARGIN, PyBulletOracle
@@ -186,6 +187,32 @@ def test_broadphase_and_tables_never_change_a_verdict_nor_does_splitting_it(pand
     np.testing.assert_array_equal(batch, ref)
     np.testing.assert_array_equal(single, ref)
     np.testing.assert_array_equal(checker.is_valid_batch(Q, split=True), ref)  # halves on two threads
+
+
+def test_a_new_maps_local_trees_give_its_whole_trees_verdicts(panda, panda_cfg):
+    """A fresh map is checked against FCL trees of only the voxels near the bodies: the same verdicts as its whole
+    tree (brute force), until local trees have cost half as much as its whole tree, and then with the whole tree."""
+    rng = np.random.default_rng(8)
+    world = World(panda)
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    keys = clutter_map(rng, 30_000).keys
+    Q = panda.random_q(rng, 400)
+    for n in (1, 5, 40, 400):
+        occ = OccupancyMap(keys, 0.01)
+        world.set_occupancy(occ)
+        got = checker.is_valid_batch(Q[:n])
+        assert not occ.has_tree  # a fresh map's first check: a tree of the voxels near the bodies
+        brute = _BruteForce(checker)  # its whole tree
+        ref = np.array([not brute.invalid(q) for q in Q[:n]])
+        np.testing.assert_array_equal(got, ref)
+    assert 0.2 < ref.mean() < 0.8
+    occ = OccupancyMap(keys, 0.01)
+    world.set_occupancy(occ)
+    checked = 0
+    while not occ.has_tree:  # one configuration at a time, as a goal's checks go: the whole tree comes, once
+        assert checker.is_valid(Q[checked]) == ref[checked]
+        checked += 1
+    assert 1 < checked < 400
 
 
 def test_the_tables_coarse_blocks_give_the_fine_tables_answers(profile):

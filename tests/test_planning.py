@@ -420,3 +420,19 @@ def test_shortcutting_asks_about_each_straight_motion_once(planner, wall_world):
     assert len(asked[0]) == len(set(asked[0])) < len(asked[1])  # without remembering, some are asked twice
     np.testing.assert_array_equal(paths[0], paths[1])
     assert len(paths[0]) < len(raw) and checker.check_path(paths[0]).valid
+
+
+def test_the_planning_bench_plans_beside_a_person_on_a_fresh_map_each_time(panda_cfg):
+    """`bench planning --person`: a person-sized column of voxels beside each problem, clear of its start and goal;
+    the plans avoid it (FCL on the timed trajectory, unpadded) and its voxels are counted."""
+    from replanner.bench import planning as bench
+    from replanner.bench.scenes import PERSON, person_map
+
+    occ = person_map((0.7, -0.2))
+    r = np.linalg.norm(occ.centers[:, :2] - [0.7, -0.2], axis=1)
+    assert 10_000 < len(occ) < 40_000 and np.all(np.abs(r - PERSON[0]) < 0.01)
+    assert occ.centers[:, 2].min() < 0.01 and occ.centers[:, 2].max() > PERSON[1] - 0.01
+    out = bench.run(panda_cfg, per_family=2, families=("table", "box"), person=True)
+    o = out["overall"]
+    assert o["with_person"] == 4 and o["success_rate"] == 1.0, o.get("failures")
+    assert o["map_voxels"]["median"] > 10_000 and o["map_colliding_samples"] == 0 and o["colliding_samples"] == 0

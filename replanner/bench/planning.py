@@ -16,12 +16,15 @@ from ..planning.types import PlanningError
 from ..stack import build_stack
 from ..stats import summary
 from ..trajectory import Trajectory, distance_to_polyline
+from ..world.collision import CollisionChecker
 from ..world.geometry import Box, Cylinder, Shape
+from ..world.occupancy import OccupancyMap
 from ..world.paddings import padded_checker
 from ..world.robot import RobotModel
+from ..world.scene import World
 from ..world.transforms import make_transform
 from .families import GRASP_PADDING, STANDARD, standard_scene
-from .scenes import TABLE_SIZE
+from .scenes import PERSON, TABLE_SIZE, person_map
 
 OURS = ("table", "shelf", "bin", "cage")
 FAMILIES = OURS + STANDARD
@@ -231,6 +234,21 @@ def ignored_pairs(robot: RobotModel, allowed_contacts) -> set[frozenset[str]]:
     return out | {frozenset(p) for p in allowed_contacts}
 
 
+def _stand_person(
+    checker, p: Problem, rng: np.random.Generator, resolution: float, tries: int = 50
+) -> OccupancyMap | None:
+    """A person's map (scenes.person_map) 0.5-0.9 m from the base, clear of the problem's start and goal (its
+    checker's map padding), seeded draws, a fixed number of them; None if none was clear."""
+    for _ in range(tries):
+        r, phi = rng.uniform(0.5 + PERSON[0], 0.9 + PERSON[0]), rng.uniform(-np.pi, np.pi)
+        occ = person_map((r * np.cos(phi), r * np.sin(phi)), resolution)
+        checker.world.set_occupancy(occ)
+        if checker.is_valid(p.start, octree_only=True) and checker.is_valid(p.goal, octree_only=True):
+            return occ
+    checker.world.set_occupancy(None)
+    return None
+
+
 def run(
     cfg: ReplannerConfig,
     *,
@@ -239,8 +257,12 @@ def run(
     deadline: float | None = None,
     verify_all: bool = True,
     families=FAMILIES,
+    person: bool = False,
     progress=None,
 ) -> dict:
+    """person: each problem has a person-sized column of voxels beside it (`_stand_person`), a fresh map for each
+    plan, as each of the service's planning jobs brings one; its timed trajectory is checked against those voxels
+    too (FCL, unpadded: `map_colliding_samples`)."""
     robot = RobotModel.from_config(cfg.robot)
     deadline = deadline or cfg.planning.deadline
     rows = []
@@ -253,6 +275,13 @@ def run(
             planner, gen = stack.planner, stack.generator
             row = {"family": family, "index": p.index}
             planner.paddings.get(p.padding)  # a padding's geometry is built before its plan's deadline starts
+            occ = None
+            if person:
+                rng = np.random.default_rng([seed, FAMILIES.index(family), p.index])
+                occ = _stand_person(stack.checker, p, rng, cfg.perception.resolution)
+            if occ is not None:  # the job's map is new to the planner: nothing of it built yet
+                stack.world.set_occupancy(OccupancyMap(occ.keys, occ.resolution, trusted=True))
+                row["map_voxels"] = len(occ)
             t0 = time.perf_counter()
             try:
                 res = planner.plan(p.start, p.goal, deadline=deadline, padding=p.padding)
@@ -285,11 +314,22 @@ def run(
                     sim.add(name, shape, pose)
                 row.update(verify(traj, cfg.planning.tube_radius, sim, ignore))
                 sim.close()
+                if occ is not None:
+                    row["map_colliding_samples"] = _map_contacts(robot, occ, traj)
             rows.append(row)
             done += 1
             if progress:
                 progress(done, total)
     return summarize(rows, robot.name, seed, deadline, cfg)
+
+
+def _map_contacts(robot: RobotModel, occ: OccupancyMap, traj: Trajectory, rate: float = 1000.0) -> int:
+    """Samples of `traj` at `rate` Hz whose unpadded robot touches a voxel of `occ` (FCL)."""
+    world = World(robot)
+    world.set_occupancy(occ)
+    checker = CollisionChecker(robot, world, padding=0.0, map_padding=0.0)
+    q = traj.evaluate(np.arange(0.0, traj.duration + 1.0 / rate, 1.0 / rate), order=0)[0]
+    return int((~checker.is_valid_batch(np.clip(q, robot.limits.lower, robot.limits.upper))).sum())
 
 
 def summarize(rows: list[dict], robot: str, seed: int, deadline: float, cfg) -> dict:
@@ -315,6 +355,11 @@ def summarize(rows: list[dict], robot: str, seed: int, deadline: float, cfg) -> 
             }
             d["colliding_samples"] = sum(r["colliding_samples"] for r in ok)
             d["samples"] = sum(r["samples"] for r in ok)
+        with_map = [r for r in sel if "map_voxels" in r]
+        if with_map:
+            d["with_person"] = len(with_map)
+            d["map_voxels"] = summary([r["map_voxels"] for r in with_map])
+            d["map_colliding_samples"] = sum(r.get("map_colliding_samples", 0) for r in ok)
         failures = [r.get("reason") for r in sel if not r["success"]]
         if failures:
             d["failures"] = failures

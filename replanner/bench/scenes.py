@@ -58,6 +58,21 @@ def clutter_map(rng: np.random.Generator, target: int = 50_000, resolution: floa
     return OccupancyMap(clutter_voxels(rng, target, resolution), resolution, **kw)
 
 
+PERSON = (0.18, 1.75)  # [m] radius and height of the column `person_map` stands up: a co-worker's size
+
+
+def person_map(xy, resolution: float = 0.01) -> OccupancyMap:
+    """The surface of a person-sized column (PERSON) standing at xy [m] on the floor plane z = 0, as a fresh map:
+    what a planning job brings of a co-worker beside the arm (~20,000 voxels at 1 cm)."""
+    r, h = PERSON
+    th, z = np.meshgrid(
+        np.linspace(0.0, 2 * np.pi, int(4 * np.pi * r / resolution), endpoint=False),
+        np.linspace(0.0, h, int(2 * h / resolution)),
+    )  # two samples a voxel: no holes
+    P = np.stack([xy[0] + r * np.cos(th), xy[1] + r * np.sin(th), z], axis=-1).reshape(-1, 3)
+    return OccupancyMap.from_points(P, resolution)
+
+
 def operator_boxes(t: float, start=(1.0, -0.95), end=(-0.2, -0.95), reach: float = 0.35) -> dict:
     """A person walking from `start` to `end` [m] (fraction t in [0, 1]) beside the table, reaching over it.
 

@@ -13,10 +13,8 @@ from __future__ import annotations
 
 import functools
 import logging
-import os
 import threading
 from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from enum import Enum
 from typing import NamedTuple
@@ -25,7 +23,8 @@ import fcl
 import numpy as np
 
 from ..errors import InvalidInputError
-from .broadphase import broadphase
+from .batches import run_batch
+from .broadphase import MAP, broadphase
 from .collision_scene import OCTREE, CollisionScene, ThreadObjects
 from .geometry import Shape
 from .kernels import body_boxes, kernel_array
@@ -34,20 +33,6 @@ from .scene import World, WorldSnapshot
 
 log = logging.getLogger(__name__)
 _NO_MAP = (np.zeros(3), 1.0, np.zeros(3, np.int64), np.zeros(1, np.int32))  # a one-cell table: no map
-SPLIT_MIN = 256  # configurations a split broadphase takes at least: a second thread's hand-off costs ~30 us
-_HELPER: list[ThreadPoolExecutor] = []
-_HELPER_LOCK = threading.Lock()
-
-
-def _second_thread() -> ThreadPoolExecutor:
-    """The one thread split broadphases share, started on first use."""
-    with _HELPER_LOCK:
-        if not _HELPER:
-            _HELPER.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="broadphase"))
-        return _HELPER[0]
-
-
-os.register_at_fork(after_in_child=_HELPER.clear)  # a forked child has no helper thread: it starts its own
 
 
 class ContactKind(str, Enum):
@@ -230,6 +215,21 @@ class CollisionChecker:
             self._octree_obj = cached if keep else self._octree_obj
         return cached[1]
 
+    def _octree_near(self, occ, keep: bool, scene: CollisionScene, T: np.ndarray, found: np.ndarray) -> Callable:
+        """`octree` for this batch's map tests (found: broadphase rows): FCL's object of the voxels near the bodies'
+        map boxes (OccupancyMap.tree_near), built on first use; the whole map's when that is the answer."""
+        sel = found[found[:, 1] == MAP]
+        Tb, c, h = T[sel[:, 0], sel[:, 2]], scene.box_c[2, sel[:, 2]], scene.box_h[2, sel[:, 2]]
+        mid = np.einsum("kij,kj->ki", Tb[:, :3, :3], c) + Tb[:, :3, 3]
+        half = np.einsum("kij,kj->ki", np.abs(Tb[:, :3, :3]), h)
+
+        @functools.cache
+        def near() -> fcl.CollisionObject:
+            tree = occ.tree_near(mid - half, mid + half)  # None: the whole map's
+            return self._octree_of(occ, keep) if tree is None else fcl.CollisionObject(tree, fcl.Transform())
+
+        return near
+
     # ------------------------------------------------------------------ broadphase
     def _body_poses(self, scene: CollisionScene, Q: np.ndarray) -> np.ndarray:
         """Body poses (N, B, 4, 4) for configurations Q (N, dof)."""
@@ -328,15 +328,9 @@ class CollisionChecker:
         def tests_of(a: int, b: int):  # rows a:b (the broadphase releases the GIL)
             return broadphase(Qk[a:b], *args, T[a:b], np.empty((max(64, b - a), 4), np.int64))
 
-        if split and N >= SPLIT_MIN:
-            h = N // 2
-            first = _second_thread().submit(tests_of, 0, h)
-            rest, r = tests_of(h, N)
-            found, m = first.result()
-            rest[:r, 0] += h
-            found, m = np.concatenate([found[:m], rest[:r]]), m + r
-        else:
-            found, m = tests_of(0, N)
+        found, m = run_batch(tests_of, N, split)
+        if octree is not None and occ.local_trees and (found[:m, 1] == MAP).any():
+            octree = self._octree_near(occ, occupancy is None, scene, T, found[:m])
         # the narrowphase work per configuration, as plain lists: no numpy call per pair
         tests: dict[int, list] = {}
         for n, kind, a, b in found[:m].tolist():

@@ -17,7 +17,7 @@ import numpy as np
 
 from .collision_scene import CollisionScene
 from .geometry import Box, Cylinder, Sphere, padding_directions
-from .kernels import frames_of, kernel_array, summed_volume
+from .kernels import frames_of, kernel_array, key_bounds, summed_volume
 from .occupancy import OccupancyMap
 from .scene import WorldSnapshot
 from .selfcollision import may_collide_row
@@ -167,27 +167,28 @@ class VoxelVolume:
     EMPTY: VoxelVolume
     MAX_CELLS = 1 << 19  # 2 MB of int32: a 2 m map at 1 cm merges 3x3x3 voxels, built in a few ms
 
-    def __init__(self, keys: np.ndarray, resolution: float):
+    def __init__(self, keys: np.ndarray, resolution: float, bounds: tuple[np.ndarray, np.ndarray] | None = None):
         keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
         if not len(keys):
             self.inv_res, self.key_min = 1.0 / resolution, np.zeros(3, np.int64)
             self.sat = self.csat = np.zeros((1, 1, 1), np.int32)
             return
-        span = keys.max(axis=0) - keys.min(axis=0) + 2
+        lo, hi = key_bounds(np.ascontiguousarray(keys)) if bounds is None else bounds  # keys' least and greatest
+        span = hi - lo + 2
         f = 1
         while np.prod(-(-span // f) + 1) > self.MAX_CELLS:
             f += 1
         keys = keys // f
         self.inv_res = 1.0 / (resolution * f)
-        self.key_min = keys.min(axis=0)
-        n = keys.max(axis=0) - self.key_min + 1
+        self.key_min = lo // f  # floor division keeps the order: the merged keys' least and greatest
+        n = hi // f - self.key_min + 1
         self.sat = np.zeros(tuple(n + 1), np.int32)
         self.csat = np.zeros(tuple(-(-n // CBLOCK) + 1), np.int32)
         _summed_volumes(keys - self.key_min + 1, self.sat, self.csat)  # a replan's first check waits for it
 
     @classmethod
     def of(cls, occ: OccupancyMap | None) -> VoxelVolume:
-        return cls.EMPTY if occ is None or not len(occ) else cls(occ.keys, occ.resolution)
+        return cls.EMPTY if occ is None or not len(occ) else cls(occ.keys, occ.resolution, occ.key_bounds)
 
     def count(self, lo, hi) -> int:
         """Cells with an occupied voxel that the box [lo, hi] [m] overlaps (0 when it overlaps none)."""
