@@ -11,7 +11,7 @@ import numpy as np
 import pybullet as pb
 
 from ..config import ReplannerConfig
-from ..control import Goal, GoalStatus, State
+from ..control import Goal, GoalRejected, GoalStatus, State
 from ..sim.kinematic import KinematicSim
 from ..sim.scene import PyBulletScene
 from ..stats import summary
@@ -58,7 +58,7 @@ def run(
     rows = []
     try:
         for k in range(runs):
-            home = ctl.submit(Goal.joints(f"to-start-{k}", A))
+            home = _accepted(ctl, Goal.joints(f"to-start-{k}", A))
             if home.wait(60) is None or home.result.status != GoalStatus.SUCCEEDED:
                 raise RuntimeError(f"run {k}: could not return to the start: {home.result}; {_stuck(ctl)}")
             size = rng.uniform(0.08, 0.16)
@@ -161,6 +161,20 @@ def _drop(probe: PyBulletScene, robot, traj, t: float, size: float, time_to_cont
     finally:
         probe.remove("box")
     raise RuntimeError(f"no drop within {tries} draws touches the path {lo}-{hi} s ahead (closest: {best[1]:.2f} s)")
+
+
+def _accepted(ctl, goal: Goal, tries: int = 120):
+    """The handle of `goal` once the controller accepts it: a goal it rejects as not ready yet (no camera frame so far,
+    as on a cold start that compiles the perception kernels) is asked again, `tries` times half a second apart."""
+    for _ in range(tries):
+        handle = ctl.submit(goal)
+        try:
+            handle.accepted(30.0)
+            return handle
+        except GoalRejected as err:
+            reason = str(err)
+        time.sleep(0.5)  # waiting on the cameras' process, not deciding anything
+    raise RuntimeError(f"the controller rejected {goal.id!r} {tries} times, the last: {reason}")
 
 
 def _stuck(ctl) -> str:
