@@ -10,6 +10,7 @@ from replanner.world.collision import CollisionChecker
 from replanner.world.convex_pass import decide_batch
 from replanner.world.geometry import Box, Cylinder, Sphere, sample_surface
 from replanner.world.layered import FastChecker
+from replanner.world.occupancy import OccupancyMap
 from replanner.world.scene import World
 from replanner.world.sphere_layer import (
     CBLOCK,
@@ -18,6 +19,7 @@ from replanner.world.sphere_layer import (
     UNSURE,
     VoxelVolume,
     ball_meets_box,
+    map_box,
     primitive_distance,
 )
 from replanner.world.spheres import cover
@@ -219,7 +221,7 @@ def test_a_motion_decided_in_one_call_is_the_spheres_then_the_convex_pass(profil
 def test_the_coarse_blocks_never_hide_a_voxel_a_box_meets():
     """The map's two summed-volume tables: as numpy's cumulative sums build them, and against a brute count of
     the voxels (merged to the table's cells) that random boxes overlap, boxes reaching past the map included: the
-    same count, 0 exactly when none."""
+    same count, 0 exactly when none. The box the layer looks at the map within holds every voxel."""
     rng = np.random.default_rng(11)
     for resolution, n_vox, spread in ((0.01, 3000, 60), (0.02, 4000, 300), (0.05, 40, 7)):
         keys = np.unique(rng.integers(-spread, spread, (n_vox, 3)) // [1, 2, 1] * [1, 2, 1], axis=0)
@@ -232,6 +234,8 @@ def test_the_coarse_blocks_never_hide_a_voxel_a_box_meets():
         blocks = np.zeros(vol.csat.shape, np.int64)
         np.add.at(blocks, tuple(((cells - vol.key_min) // CBLOCK + 1).T), 1)
         np.testing.assert_array_equal(vol.csat, blocks.cumsum(0).cumsum(1).cumsum(2))
+        box = np.array(map_box(vol.sat, vol.key_min, vol.inv_res))  # every voxel a cell inside it
+        assert (keys * resolution >= box[:3] + cell - 1e-9).all() and ((keys + 1) * resolution <= box[3:] - cell).all()
         zero = 0
         for _ in range(600):
             lo = rng.uniform(-1.3, 1.1, 3) * spread * resolution
@@ -262,3 +266,30 @@ def test_an_obstacles_world_box_never_parts_it_from_a_ball_that_meets_it(panda, 
         met += meets
         skipped += not boxed
     assert met > 200 and skipped > 5000  # both answers are asked for
+
+
+def test_one_voxel_on_the_arm_is_seen_and_an_empty_map_changes_no_verdict(panda, panda_cfg):
+    """The layer skips the map's look when the map holds nothing: a single voxel on a body's surface still makes
+    every layer refuse the configuration, as FCL does, and an empty map gives the verdicts of no map at all."""
+    rng = np.random.default_rng(21)
+    world = World(panda)
+    add_table(world)
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    fast = FastChecker(checker)
+    Q = panda.random_q(rng, 3000)
+    bare = fast.layer()[0].classify(Q, fast.layer()[1])
+    world.set_occupancy(OccupancyMap.empty(0.01))
+    layer, volume = fast.layer()
+    np.testing.assert_array_equal(layer.classify(Q, volume), bare)
+    free = Q[checker.is_valid_batch(Q)][:40]
+    assert len(free) == 40
+    for k, q in enumerate(free):
+        body = panda.bodies[k % len(panda.bodies)]
+        T = panda.link_pose(q, body.link) @ body.T_link_body
+        p = T[:3, :3] @ sample_surface(body.shape, 1, rng)[0] + T[:3, 3]
+        world.set_occupancy(OccupancyMap.from_points(p[None], 0.01))
+        layer, volume = fast.layer()
+        assert not checker.is_valid(q), (k, body.link)
+        assert layer.classify(q[None], volume)[0] != FREE, (k, body.link)
+        assert not fast.is_valid(q) and not fast.is_valid_batch(q[None])[0], (k, body.link)
+        assert not fast.motion_valid(q, q, 0.0), (k, body.link)

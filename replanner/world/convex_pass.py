@@ -16,6 +16,8 @@ from .sphere_layer import (
     SphereScene,
     _place,
     ball_in_map,
+    ball_near_box,
+    map_box,
     pair_grow,
     primitive_distance,
     spheres_meet_body,
@@ -98,6 +100,7 @@ def _decide_all(
     sel = np.empty(local.shape[0], np.int64)
     S, small, none = np.empty((4, 3)), np.empty(3), np.zeros(3)
     placed = np.zeros(B, np.bool_)
+    m0, m1, m2, M0, M1, M2 = map_box(sat, key_min, inv_res)  # a ball outside it needs no look at the map
     for j in range(idx.shape[0]):
         n = idx[j]
         for b in range(B):
@@ -131,12 +134,14 @@ def _decide_all(
                     break
             if verdict == -1:
                 break
-            if verdict == APART and octree_mask[b]:  # the map's voxels: the spheres' test, else FCL's
-                if ball_in_map(sat, csat, key_min, inv_res, x, y, z, ball_r[b] + map_pad * gf[b]):
+            mg = map_pad * gf[b]
+            # the map's voxels: the spheres' test, else FCL's
+            if verdict == APART and octree_mask[b] and ball_near_box(m0, m1, m2, M0, M1, M2, x, y, z, ball_r[b] + mg):
+                if ball_in_map(sat, csat, key_min, inv_res, x, y, z, ball_r[b] + mg):
                     if not placed[b]:
                         _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
                         placed[b] = True
-                    if spheres_meet_map(C, rad, first[b], first[b + 1], map_pad * gf[b], sat, csat, key_min, inv_res):
+                    if spheres_meet_map(C, rad, first[b], first[b + 1], mg, sat, csat, key_min, inv_res):
                         verdict = 0
         if verdict != -1:
             for p in range(pair_a.shape[0]):

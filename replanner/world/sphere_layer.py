@@ -323,6 +323,24 @@ def ball_in_map(sat, csat, key_min, inv_res, x, y, z, g) -> bool:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def map_box(sat, key_min, inv_res):
+    """lo0, lo1, lo2, hi0, hi1, hi2 [m] of the volume's cells, a cell wider each way; an empty map's is empty."""
+    if sat.shape[0] <= 1:
+        return np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
+    c = 1.0 / inv_res
+    return (
+        (key_min[0] - 1) * c, (key_min[1] - 1) * c, (key_min[2] - 1) * c, (key_min[0] + sat.shape[0]) * c,
+        (key_min[1] + sat.shape[1]) * c, (key_min[2] + sat.shape[2]) * c,
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def ball_near_box(lo0, lo1, lo2, hi0, hi1, hi2, x, y, z, g) -> bool:
+    """Whether the ball at (x, y, z) of radius g meets the box [lo, hi]."""
+    return lo0 <= x + g and x - g <= hi0 and lo1 <= y + g and y - g <= hi1 and lo2 <= z + g and z - g <= hi2
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def pair_grow(BC, ball_r, gf, self_pad, a, b) -> float:
     """The padding [m] two bodies' spheres are grown by together, or -1 when their bounding balls (centres BC[a],
     BC[b]) are apart even with it: the pair needs no sphere test."""
@@ -372,6 +390,7 @@ def verdicts(
     placed = np.zeros(B, np.bool_)  # a body's spheres are placed only when its ball meets something
     placed_in = np.zeros(B, np.bool_)  # and its inner balls only when a sphere meets something
     sel = np.empty(local.shape[0], np.int64)
+    m0, m1, m2, M0, M1, M2 = map_box(sat, key_min, inv_res)  # a ball outside it needs no look at the map
     for t in range(order.shape[0]):
         n = order[t]
         frames_of(Q, n, Fj, prismatic, joints, parents, frames, 0)
@@ -416,7 +435,7 @@ def verdicts(
                         break
                 if verdict == -1:
                     break
-            if verdict == 1 and octree_mask[b]:
+            if verdict == 1 and octree_mask[b] and ball_near_box(m0, m1, m2, M0, M1, M2, x, y, z, ball_r[b] + mg):
                 if ball_in_map(sat, csat, key_min, inv_res, x, y, z, ball_r[b] + mg):
                     if not placed[b]:
                         _place(frames, 0, ball_slot[b], local, first[b], first[b + 1], C)
