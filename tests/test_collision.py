@@ -215,6 +215,24 @@ def test_a_new_maps_local_trees_give_its_whole_trees_verdicts(panda, panda_cfg):
     assert 1 < checked < 400
 
 
+def test_a_batch_against_the_map_alone_sees_its_voxels_and_nothing_else(panda, panda_cfg):
+    """is_valid_batch(octree_only=True): each configuration as is_valid(q, octree_only=True) says, blind to the
+    table and to the robot's own links, which the full check still sees."""
+    rng = np.random.default_rng(12)
+    world = World(panda)
+    add_table(world)
+    world.set_occupancy(clutter_map(rng, 20_000))
+    checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
+    Q = panda.random_q(rng, 600)
+    got = checker.is_valid_batch(Q, octree_only=True)
+    np.testing.assert_array_equal(got, [checker.is_valid(q, octree_only=True) for q in Q])
+    full = checker.is_valid_batch(Q)
+    assert not (full & ~got).any() and 0 < got.mean() < 1
+    assert (got & ~full).sum() > 20  # refused for the table or the links alone: not the map's
+    world.set_occupancy(None)
+    assert checker.is_valid_batch(Q, octree_only=True).all() and not checker.is_valid_batch(Q).all()
+
+
 def test_the_tables_coarse_blocks_give_the_fine_tables_answers(profile):
     """A block's least clearance is asked before the grid point's: the same answer as the fine table alone."""
     _, robot = profile

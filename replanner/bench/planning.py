@@ -329,7 +329,8 @@ def _map_contacts(robot: RobotModel, occ: OccupancyMap, traj: Trajectory, rate: 
     world.set_occupancy(occ)
     checker = CollisionChecker(robot, world, padding=0.0, map_padding=0.0)
     q = traj.evaluate(np.arange(0.0, traj.duration + 1.0 / rate, 1.0 / rate), order=0)[0]
-    return int((~checker.is_valid_batch(np.clip(q, robot.limits.lower, robot.limits.upper))).sum())
+    q = np.clip(q, robot.limits.lower, robot.limits.upper)
+    return int((~checker.is_valid_batch(q, octree_only=True)).sum())  # the map alone: self contacts are not its
 
 
 def summarize(rows: list[dict], robot: str, seed: int, deadline: float, cfg) -> dict:

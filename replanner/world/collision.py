@@ -219,13 +219,12 @@ class CollisionChecker:
         """`octree` for this batch's map tests (found: broadphase rows): FCL's object of the voxels near the bodies'
         map boxes (OccupancyMap.tree_near), built on first use; the whole map's when that is the answer."""
         sel = found[found[:, 1] == MAP]
-        Tb, c, h = T[sel[:, 0], sel[:, 2]], scene.box_c[2, sel[:, 2]], scene.box_h[2, sel[:, 2]]
-        mid = np.einsum("kij,kj->ki", Tb[:, :3, :3], c) + Tb[:, :3, 3]
-        half = np.einsum("kij,kj->ki", np.abs(Tb[:, :3, :3]), h)
+        lo, hi = self._aabbs(T, scene.box_c[2:3], scene.box_h[2:3])  # the map boxes of every row: cheap, compiled
+        lo, hi = lo[sel[:, 0], 0, sel[:, 2]], hi[sel[:, 0], 0, sel[:, 2]]
 
         @functools.cache
         def near() -> fcl.CollisionObject:
-            tree = occ.tree_near(mid - half, mid + half)  # None: the whole map's
+            tree = occ.tree_near(lo, hi)  # None: the whole map's
             return self._octree_of(occ, keep) if tree is None else fcl.CollisionObject(tree, fcl.Transform())
 
         return near
@@ -376,12 +375,13 @@ class CollisionChecker:
         _, contacts = self._first_invalid(Q, True, locate=True)
         return contacts[0]
 
-    def is_valid_batch(self, Q, split: bool = False) -> np.ndarray:
-        """Validity (N,) of configurations Q (N, dof). split: the broadphase of a large batch on two threads."""
+    def is_valid_batch(self, Q, split: bool = False, octree_only: bool = False) -> np.ndarray:
+        """Validity (N,) of configurations Q (N, dof). split: the broadphase of a large batch on two threads.
+        octree_only: against the occupancy map alone (with `map_padding`)."""
         Q = self.robot.check_q(Q)
         if Q.ndim != 2:
             raise InvalidInputError(f"Q must be (N, {self.robot.dof}), got shape {Q.shape}")
-        valid, _ = self._first_invalid(Q, False, split=split)
+        valid, _ = self._first_invalid(Q, False, octree_only, split=split)
         return valid
 
     def clearance(self, q, max_distance: float = 1.0) -> Clearance:
