@@ -164,8 +164,8 @@ def _drop(probe: PyBulletScene, robot, traj, t: float, size: float, time_to_cont
 
 
 def _accepted(ctl, goal: Goal, tries: int = 120):
-    """The handle of `goal` once the controller accepts it: a goal it rejects as not ready yet (no camera frame so far,
-    as on a cold start that compiles the perception kernels) is asked again, `tries` times half a second apart."""
+    """The handle of `goal` once the controller accepts it: a goal it rejects as not ready (a camera silent longer than
+    its timeout, as on a machine busy with other work) is asked again, `tries` times half a second apart."""
     for _ in range(tries):
         handle = ctl.submit(goal)
         try:

@@ -26,6 +26,7 @@ from .camera import PyBulletDepthCamera
 from .scene import PyBulletScene
 
 log = logging.getLogger(__name__)
+START_TIMEOUT = 120.0  # [s] for the renderer and the first frames: a liveness guard that fails loudly, not a decision
 
 
 class KinematicSim:
@@ -73,6 +74,8 @@ class KinematicSim:
         self.cameras_on = True
         self.map_updates: list[tuple[float, int]] = []  # (time, occupied voxels)
         self.frame_hooks: list = []  # called with the time after each integrated frame (benches measure here)
+        self._unseen = set(self.sensors)  # cameras whose first frame is not in the map yet
+        self._all_seen = threading.Event()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
 
@@ -102,15 +105,18 @@ class KinematicSim:
         self.controller.start()
         if self.sensors:
             self._renderer.start()
-            if not self._conn.poll(120.0):
-                raise RuntimeError("the camera renderer did not start within 120 s")
+            if not self._conn.poll(START_TIMEOUT):
+                raise RuntimeError(f"the camera renderer did not start within {START_TIMEOUT:.0f} s")
             self._conn.recv()  # ready
             t = threading.Thread(target=self._camera_loop, name="cameras", daemon=True)
             t.start()
             self._threads.append(t)
-        deadline = time.monotonic() + 5.0
-        while self.sensors and not self.map_updates and time.monotonic() < deadline:
-            time.sleep(0.01)
+        # every camera in the map before goals come: the controller refuses goals while one is silent
+        if self.sensors and not self._all_seen.wait(START_TIMEOUT):
+            raise RuntimeError(
+                f"cameras {sorted(self._unseen)} sent no frame into the map within {START_TIMEOUT:.0f} s of starting "
+                "(a first start compiles the perception kernels: see that numba's cache directory is writable)"
+            )
         return self
 
     def stop(self) -> None:
@@ -144,6 +150,9 @@ class KinematicSim:
                         continue
                     now = time.monotonic()
                     self.map_updates.append((now, len(self.world.occupancy)))
+                    self._unseen.discard(name)
+                    if not self._unseen:
+                        self._all_seen.set()
                     for hook in list(self.frame_hooks):
                         hook(now)
             next_t += period

@@ -269,14 +269,8 @@ def primitive_distance(ob_inv, o, k, ob_dim, x, y, z):
 @numba.njit(cache=True, nogil=True, inline="always")
 def ball_meets_box(ob_box, o, x, y, z, r) -> bool:
     """Whether the box around the ball at (x, y, z) of radius r meets obstacle o's world box (lows, highs)."""
-    return not (
-        x + r < ob_box[o, 0]
-        or y + r < ob_box[o, 1]
-        or z + r < ob_box[o, 2]
-        or x - r > ob_box[o, 3]
-        or y - r > ob_box[o, 4]
-        or z - r > ob_box[o, 5]
-    )
+    b = ob_box[o]
+    return ball_near_box(b[0], b[1], b[2], b[3], b[4], b[5], x, y, z, r)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
