@@ -279,6 +279,11 @@ class PlanningConfig(Section):
     )
     position_tolerance: float = Field(0.002, gt=0.0, description="Cartesian goal position tolerance [m].")
     orientation_tolerance: float = Field(0.02, gt=0.0, description="Cartesian goal orientation tolerance [rad].")
+    record_jobs: str | None = Field(
+        None,
+        description="A directory: every job the service plans is kept there with its world and outcome (one .npz "
+        "each), for `replanner bench replay DIR`; null: none are kept.",
+    )
 
 
 class Reaction(str, Enum):

@@ -19,6 +19,7 @@ from .control.latency import LatencyAccount
 from .monitor import Monitor, build_monitor
 from .perception import Perception
 from .planning import InlineWorker, Planner, PlanWorker, ProcessWorker, ThreadWorker
+from .planning.recording import JobRecorder
 from .trajectory import Trajectory, TrajectoryGenerator
 from .world.collision import CollisionChecker
 from .world.geometry import Shape
@@ -123,6 +124,8 @@ def _wire(cfg, robot, static, seed, cameras, execute, plan_in, clock) -> Stack:
         stack.worker = InlineWorker(planner, generator, clock)
     else:
         stack.worker = ThreadWorker(planner, generator)
+    if cfg.planning.record_jobs:
+        stack.worker.recorder = JobRecorder(cfg.planning.record_jobs, cfg.core().model_dump(mode="json"))
     stack.controller = Controller(
         robot,
         checker,

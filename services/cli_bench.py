@@ -229,6 +229,35 @@ def bench_planning(
         _print_planning(result)
 
 
+@app.command("replay")
+def bench_replay(
+    directory: str = typer.Argument(..., help="A directory a service recorded its jobs in (planning.record_jobs)."),
+    config: str | None = typer.Option(None, "--config", "-c", help="This config (default: the one recorded there)."),
+    repeat: int = typer.Option(1, min=1, help="Plans of each job (each with its map built anew)."),
+    purpose: str | None = typer.Option(None, help="Only jobs of these purposes, comma-separated: goal, replan, hold."),
+    layer: str = typer.Option(None, help="Collision layer of the search: 'spheres' or 'fcl' (default: the config's)."),
+    load: LoadOpt = 0,
+    as_json: JsonOpt = False,
+) -> None:
+    """Plan again the jobs a service recorded (`demo --record-jobs DIR`): plan ms here next to the service's."""
+    from replanner.bench import replay
+
+    try:
+        cfg = replay.config_of(directory, config, layer)
+    except ReplannerError as err:
+        fail(err)
+    result = measured(load, lambda: replay.run(cfg, directory, repeat=repeat, purposes=purpose and purpose.split(",")))
+    if as_json:
+        print_json(result)
+        return
+    t = Table("jobs", "plans", "solved", "plan ms median", "p95", "recorded median", "recorded p95",
+              title=f"replay of {directory}: {result['collision_layer']} layer")  # fmt: skip
+    for name, part in [("all", result["overall"]), *result["purposes"].items()]:
+        figures = [part[k][q] for k in ("plan_ms", "recorded_plan_ms") for q in ("median", "p95")]
+        t.add_row(name, str(part["plans"]), f"{part['success_rate']:.0%}", *(f"{v:.1f}" if v else "-" for v in figures))
+    Console().print(t)
+
+
 @app.command("reflex")
 def bench_reflex(
     config: ConfigOpt = "panda",

@@ -224,6 +224,9 @@ def demo(
     load: LoadOpt = 0,
     view: bool = typer.Option(False, "--view", help="Serve the live web view too (`replanner view`); prints its URL."),
     view_port: int = typer.Option(8080, "--view-port", min=0, max=65535, help="The web view's port (0: any free one)."),
+    record_jobs: str | None = typer.Option(
+        None, "--record-jobs", help="Keep every planning job of the service in this directory (replanner bench replay)."
+    ),
     verbose: bool = typer.Option(False, "-v", "--verbose"),
 ) -> None:
     """Sim, service and pick-and-place client as three processes on loopback; a table of what happened."""
@@ -245,6 +248,7 @@ def demo(
                 log_dir=log_dir,
                 console=console,
                 view_port=view_port if view else None,
+                record_jobs=record_jobs,
             )
         metrics["load"] = busy.describe()
         demo_mod.write_outputs(metrics, rec, info, cfg, json_path, plot)

@@ -56,9 +56,11 @@ def run(
     console: Console | None = None,
     tick=None,
     view_port: int | None = None,
+    record_jobs: str | None = None,
 ) -> tuple[dict, object, dict]:
     """Run one demo; returns (metrics, recording, run info). `tick(elapsed, procs, recorder)` is called about
-    four times a second while it runs (the soak samples there). `view_port`: also run `replanner view` there."""
+    four times a second while it runs (the soak samples there). `view_port`: also run `replanner view` there.
+    `record_jobs`: the service keeps its planning jobs in this directory (planning.record_jobs)."""
     console = console or Console()
     logs = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix="replanner-demo-"))
     logs.mkdir(parents=True, exist_ok=True)
@@ -70,6 +72,7 @@ def run(
                 "base": str(config_path(config)),
                 "controller": {"reaction": POLICIES[policy]},
                 "transport": {"endpoint": endpoint},
+                **({"planning": {"record_jobs": str(Path(record_jobs).resolve())}} if record_jobs else {}),
             }
         )
     )

@@ -88,6 +88,7 @@ class PlanWorker(ABC):
         self._running: PlanJob | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self.recorder = None  # a recording.JobRecorder: every answered job is kept on disk too
 
     def start(self, on_answer: Callable[[PlanAnswer], None]) -> PlanWorker:
         """Begin; `on_answer` is called from the worker's thread with every answer (it must not block)."""
@@ -150,6 +151,8 @@ class PlanWorker(ABC):
                     self._running = None
             if self._on_answer is not None:
                 self._on_answer(answer)
+            if self.recorder is not None:
+                self.recorder.record(job, snapshot, answer)
 
     @abstractmethod
     def solve(self, job: PlanJob, snapshot: WorldSnapshot) -> tuple[Trajectory, PlanResult]:
@@ -208,6 +211,8 @@ class InlineWorker(PlanWorker):
         except ReplannerError as err:
             answer = PlanAnswer(job, error=err)
         self._due.append((self.clock() + self.delay, answer))
+        if self.recorder is not None:
+            self.recorder.record(job, snapshot, answer)
 
     def deliver(self) -> None:
         """Hand over every answer whose time has come."""

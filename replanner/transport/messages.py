@@ -12,7 +12,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..errors import InvalidInputError
-from ..world.geometry import Box, Cylinder, Mesh, Sphere
+from ..world.geometry import Box, Cylinder, Mesh, Sphere, shape_to_dict
 from ..world.transforms import make_transform
 from . import trajectory_cdr
 from .cdr import CDR_LE, JOINT_STATE, JOINT_TRAJECTORY, POINT_CLOUD2, make_header, split_time, typestore
@@ -116,13 +116,7 @@ def shape_from(msg) -> Box | Cylinder | Sphere | Mesh:
 
 
 def shape_to_msg(shape) -> dict:
-    if isinstance(shape, Box):
-        return {"type": "box", "size": list(shape.size)}
-    if isinstance(shape, Cylinder):
-        return {"type": "cylinder", "radius": shape.radius, "length": shape.length}
-    if isinstance(shape, Sphere):
-        return {"type": "sphere", "radius": shape.radius}
-    return {"type": "mesh", "vertices": np.asarray(shape.vertices).tolist(), "faces": np.asarray(shape.faces).tolist()}
+    return {k: v for k, v in shape_to_dict(shape).items() if k != "convex"}  # the protocol's MeshShape has no flag
 
 
 class SceneAdd(_Msg):

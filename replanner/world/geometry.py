@@ -98,6 +98,37 @@ class ConvexHull:
 Shape = Box | Cylinder | Sphere | Mesh | ConvexHull
 
 
+def shape_to_dict(shape: Shape) -> dict:
+    """A shape as plain JSON data ({"type": "box", "size": [...]}, ...); `shape_from_dict` reads it back."""
+    if isinstance(shape, Box):
+        return {"type": "box", "size": list(shape.size)}
+    if isinstance(shape, Cylinder):
+        return {"type": "cylinder", "radius": shape.radius, "length": shape.length}
+    if isinstance(shape, Sphere):
+        return {"type": "sphere", "radius": shape.radius}
+    out = {"type": "mesh", "vertices": np.asarray(shape.vertices).tolist(), "faces": np.asarray(shape.faces).tolist()}
+    if isinstance(shape, ConvexHull) or shape.convex:
+        out["convex"] = True
+    return out
+
+
+def shape_from_dict(d) -> Shape:
+    """The shape `shape_to_dict` wrote; InvalidInputError naming what is wrong with anything else."""
+    kind = d.get("type") if isinstance(d, dict) else None
+    try:
+        if kind == "box":
+            return Box(size=tuple(float(v) for v in d["size"]))
+        if kind == "cylinder":
+            return Cylinder(radius=float(d["radius"]), length=float(d["length"]))
+        if kind == "sphere":
+            return Sphere(radius=float(d["radius"]))
+        if kind == "mesh":
+            return Mesh(np.asarray(d["vertices"], float), np.asarray(d["faces"], np.int64), bool(d.get("convex")))
+    except (KeyError, TypeError, ValueError) as err:
+        raise InvalidInputError(f"shape {kind}: missing or malformed field ({err!r}) in {str(d)[:120]}") from None
+    raise InvalidInputError(f"shape type must be box, cylinder, sphere or mesh, got {str(d)[:120]}")
+
+
 def _check_positive(name: str, values, n: int) -> None:
     a = np.asarray(values, dtype=float)
     if a.shape != (n,) or not np.all(np.isfinite(a)) or np.any(a <= 0):

@@ -1,0 +1,133 @@
+"""`replanner bench replay DIR`: the jobs a service recorded (`planning.record_jobs`) planned again here, in one
+planner as the service's planning process holds it (the world set up again only when it changed, each job's map
+new): how long each plan takes on this machine and version, next to what the service took."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from ..config import ReplannerConfig, parse_config
+from ..errors import InvalidInputError
+from ..planning.recording import RecordedJob, load_jobs, recorded_config
+from ..planning.types import PlanningError
+from ..sim.config import load_cell_config
+from ..stack import build_stack
+from ..stats import summary
+from ..world.geometry import shape_to_dict
+from ..world.occupancy import OccupancyMap
+
+
+def config_of(directory: str, config: str | None = None, layer: str | None = None) -> ReplannerConfig:
+    """`config` (a YAML file or a profile name), else the config recorded beside the jobs; `layer`: the search's
+    collision layer instead of the config's ('spheres' or 'fcl')."""
+    if config is not None:
+        cfg = load_cell_config(config).core()
+    else:
+        kept = recorded_config(directory)
+        if kept is None:
+            raise InvalidInputError(f"no config.json in {directory}: give the config the jobs were planned with (-c)")
+        cfg = parse_config(kept, source=f"{directory}/config.json")
+    if layer is not None:
+        if layer not in ("spheres", "fcl"):
+            raise InvalidInputError(f"--layer must be 'spheres' or 'fcl', got {layer!r}")
+        cfg = cfg.model_copy(update={"planning": cfg.planning.model_copy(update={"collision_layer": layer})})
+    return cfg
+
+
+def _world_key(job: RecordedJob) -> str:
+    return json.dumps(
+        [
+            [(n, shape_to_dict(s), p.tolist()) for n, s, p in job.objects],
+            [(n, shape_to_dict(s), link, T.tolist(), touch, sup) for n, s, link, T, touch, sup in job.attachments],
+        ]
+    )
+
+
+def _set_world(world, job: RecordedJob) -> None:
+    for name in world.names():  # as the planning process does: the map stays
+        world.remove(name)
+    for name, shape, pose in job.objects:
+        world.add(name, shape, pose)
+    for name, shape, link, T, touch, support in job.attachments:
+        world.attach_new(name, shape, link, T, touch, support)
+
+
+def run(cfg: ReplannerConfig, directory: str, *, seed: int = 0, repeat: int = 1, purposes=None) -> dict:
+    """Plan every recorded job (of `purposes`, default all) `repeat` times; plan_ms of each, as `plan()` times it
+    (checks of start and goal, search, simplification: the part of a replan that is planning)."""
+    jobs = load_jobs(directory)
+    purposes = [p.strip() for p in purposes or () if p.strip()]
+    if purposes:
+        jobs = [j for j in jobs if j.purpose in purposes]
+        if not jobs:
+            raise InvalidInputError(f"no recorded job of purpose {', '.join(purposes)} in {directory}")
+    stack = build_stack(cfg, static=(), seed=seed, cameras=False)
+    robot, planner, world = stack.robot, stack.planner, stack.world
+    other = next((j for j in jobs if len(j.start) != robot.dof or j.robot not in (None, robot.name)), None)
+    if other is not None:
+        raise InvalidInputError(
+            f"{other.path.name} was recorded for {other.robot or 'a robot'} with {len(other.start)} joints, the "
+            f"config's robot is {robot.name} with {robot.dof}: give the config the jobs were recorded with (-c)"
+        )
+    rows, key, first = [], None, True
+    for job in jobs:
+        changed = _world_key(job) != key  # the service set its world up again for this job: so does each plan of it
+        key = _world_key(job)
+        planner.paddings.get(job.padding)  # a padding's geometry is built before its plan's deadline starts
+        for _ in range(repeat + first):
+            if changed:
+                _set_world(world, job)
+            # each plan a new map, built before it as the planning process does: each job brings one
+            cell = cfg.collision.broadphase_cell
+            world.set_occupancy(
+                OccupancyMap(job.keys, job.resolution, broadphase_cell=cell, trusted=True) if len(job.keys) else None
+            )
+            try:
+                res = planner.plan(job.start, job.q_goal, planner=job.planner, deadline=job.deadline,
+                                   padding=job.padding)  # fmt: skip
+                row = {"ok": True, "plan_ms": res.total_time * 1e3, "attempts": res.attempts}
+            except PlanningError as err:
+                row = {"ok": False, "reason": f"{type(err).__name__}: {err}"}
+            if first:  # a first plan compiles and builds what the service had built before its first job
+                first = False
+                continue
+            recorded = job.outcome
+            rows.append(
+                {
+                    "job": job.path.name,
+                    "purpose": job.purpose,
+                    "map_voxels": len(job.keys),
+                    **row,
+                    "recorded_ok": recorded.get("ok"),
+                    "recorded_plan_ms": None if recorded.get("plan_s") is None else recorded["plan_s"] * 1e3,
+                }
+            )
+    return summarize(rows, directory, robot.name, cfg.planning.collision_layer, repeat)
+
+
+def summarize(rows: list[dict], directory: str, robot: str, layer: str, repeat: int) -> dict:
+    def part(rs: list[dict]) -> dict:
+        ok = [r for r in rs if r["ok"]]
+        was = [r["recorded_plan_ms"] for r in rs if r["recorded_plan_ms"] is not None]
+        return {
+            "plans": len(rs),
+            "success_rate": len(ok) / len(rs) if rs else None,
+            "plan_ms": summary([r["plan_ms"] for r in ok]),
+            "recorded_plan_ms": summary(was),
+            "recorded_success_rate": float(np.mean([bool(r["recorded_ok"]) for r in rs])) if rs else None,
+            "map_voxels": summary([r["map_voxels"] for r in rs]),
+        }
+
+    purposes = sorted({r["purpose"] for r in rows})
+    return {
+        "bench": "replay",
+        "directory": str(directory),
+        "robot": robot,
+        "collision_layer": layer,
+        "repeat": repeat,
+        "overall": part(rows),
+        "purposes": {p: part([r for r in rows if r["purpose"] == p]) for p in purposes},
+        "rows": rows,
+    }
