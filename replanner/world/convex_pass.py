@@ -1,6 +1,7 @@
 """The second pass of the planning layer: configurations the spheres could not decide, decided on the convex shapes
-FCL is given (world/gjk.py), compiled. What it cannot decide (the map's voxels, meshes that are not primitives,
-shapes within a micrometre of touching) stays FCL's.
+FCL is given (world/gjk.py), compiled; near the map, by a finer cover of spheres tested exactly against the voxels
+(free) and by balls inside the body grown by the padding (in contact). What it cannot decide (the map's closest
+misses, meshes that are not primitives, shapes within a micrometre of touching) stays FCL's.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from .gjk import APART, POINTS, TOUCH, decide
 from .hull_graph import edge_graph
 from .sphere_layer import (
     SphereScene,
+    _box_sum,
     _place,
     ball_in_map,
     ball_near_box,
@@ -21,7 +23,6 @@ from .sphere_layer import (
     pair_grow,
     primitive_distance,
     spheres_meet_body,
-    spheres_meet_map,
     spheres_meet_primitive,
 )
 
@@ -77,9 +78,94 @@ def decide_batch(
         cp.supported, layer.env_pad, layer.self_pad, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b, layer.local, layer.radius,
         layer.first, layer.ball_slot, layer.ball_c, layer.ball_r, layer.gf, layer.map_pad, layer.env_mask,
         layer.ob_kind, layer.ob_inv, layer.ob_dim, layer.ob_id, layer.ob_exact, layer.octree_mask, vol.sat,
-        vol.csat, vol.key_min, vol.inv_res, cp.hv_first, cp.hv_nb, cp.hv_start,
+        vol.csat, vol.key_min, vol.inv_res, cp.hv_first, cp.hv_nb, cp.hv_start, layer.fine_local, layer.fine_rad,
+        layer.fine_ptr, layer.fine_idx, layer.in_local, layer.in_rad, layer.in_first, vol.whole,
     )  # fmt: skip
     return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def fine_meets_map(F, C, rad, first, last, grow, fine_local, fine_rad, fine_ptr, fine_idx, sat, csat, key_min,
+                   inv_res) -> bool:  # fmt: skip
+    """`spheres_meet_map` looked at again: the fine spheres (`SphereScene.fine_*`, placed by the body's frame F) of
+    each placed sphere C[first:last] that may meet a voxel; whether any of those may."""
+    for s in range(first, last):
+        if not ball_meets_cells(sat, csat, key_min, inv_res, C[s, 0], C[s, 1], C[s, 2], rad[s] + grow):
+            continue
+        for e in range(fine_ptr[s], fine_ptr[s + 1]):
+            f = fine_idx[e]
+            x, y, z = fine_local[f, 0], fine_local[f, 1], fine_local[f, 2]
+            wx = F[0, 0] * x + F[0, 1] * y + F[0, 2] * z + F[0, 3]
+            wy = F[1, 0] * x + F[1, 1] * y + F[1, 2] * z + F[1, 3]
+            wz = F[2, 0] * x + F[2, 1] * y + F[2, 2] * z + F[2, 3]
+            if ball_meets_cells(sat, csat, key_min, inv_res, wx, wy, wz, fine_rad[f] + grow):
+                return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def inner_meets_map(F, in_local, in_rad, first, last, grow, sat, csat, key_min, inv_res) -> bool:
+    """Whether a ball inside the body (in_local[first:last], placed by its frame F), grown by `grow` (less than the
+    padding: the padded body holds it), meets a voxel (cells of one voxel each): a contact for certain."""
+    for k in range(first, last):
+        x, y, z = in_local[k, 0], in_local[k, 1], in_local[k, 2]
+        wx = F[0, 0] * x + F[0, 1] * y + F[0, 2] * z + F[0, 3]
+        wy = F[1, 0] * x + F[1, 1] * y + F[1, 2] * z + F[1, 3]
+        wz = F[2, 0] * x + F[2, 1] * y + F[2, 2] * z + F[2, 3]
+        if ball_meets_cells(sat, csat, key_min, inv_res, wx, wy, wz, in_rad[k] + grow):
+            return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def ball_meets_cells(sat, csat, key_min, inv_res, x, y, z, r) -> bool:
+    """Whether the ball at (x, y, z) [m] of radius r meets an occupied cell of the volume (sat, csat, key_min,
+    inv_res: VoxelVolume's), exactly: its bounding cube's cells halved while they hold one and the ball reaches
+    them (ball_in_map asks the cube alone, whose corners reach 0.7 r past the ball)."""
+    if not ball_in_map(sat, csat, key_min, inv_res, x, y, z, r):
+        return False
+    c = 1.0 / inv_res
+    n0, n1, n2 = sat.shape[0] - 2, sat.shape[1] - 2, sat.shape[2] - 2  # the last cell index per axis
+    stack = np.empty((64, 6), np.int64)  # boxes of cells [a, b], inclusive, relative to key_min
+    stack[0] = (
+        max(np.int64(np.floor((x - r) * inv_res)) - key_min[0], 0),
+        max(np.int64(np.floor((y - r) * inv_res)) - key_min[1], 0),
+        max(np.int64(np.floor((z - r) * inv_res)) - key_min[2], 0),
+        min(np.int64(np.floor((x + r) * inv_res)) - key_min[0], n0),
+        min(np.int64(np.floor((y + r) * inv_res)) - key_min[1], n1),
+        min(np.int64(np.floor((z + r) * inv_res)) - key_min[2], n2),
+    )
+    top, rr = 1, r * r
+    while top > 0:
+        top -= 1
+        a0, a1, a2, b0, b1, b2 = stack[top]
+        if a0 > b0 or a1 > b1 or a2 > b2 or _box_sum(sat, a0, a1, a2, b0 + 1, b1 + 1, b2 + 1) == 0:
+            continue
+        # the box's nearest point to the centre: farther than r, nothing in it meets the ball
+        lo0, lo1, lo2 = (a0 + key_min[0]) * c, (a1 + key_min[1]) * c, (a2 + key_min[2]) * c
+        hi0, hi1, hi2 = (b0 + 1 + key_min[0]) * c, (b1 + 1 + key_min[1]) * c, (b2 + 1 + key_min[2]) * c
+        d0 = lo0 - x if x < lo0 else x - hi0 if x > hi0 else 0.0
+        d1 = lo1 - y if y < lo1 else y - hi1 if y > hi1 else 0.0
+        d2 = lo2 - z if z < lo2 else z - hi2 if z > hi2 else 0.0
+        if d0 * d0 + d1 * d1 + d2 * d2 > rr:
+            continue
+        if a0 == b0 and a1 == b1 and a2 == b2:
+            return True  # an occupied cell the ball reaches
+        # halve along the longest side
+        if b0 - a0 >= b1 - a1 and b0 - a0 >= b2 - a2:
+            m = (a0 + b0) // 2
+            stack[top] = (a0, a1, a2, m, b1, b2)
+            stack[top + 1] = (m + 1, a1, a2, b0, b1, b2)
+        elif b1 - a1 >= b2 - a2:
+            m = (a1 + b1) // 2
+            stack[top] = (a0, a1, a2, b0, m, b2)
+            stack[top + 1] = (a0, m + 1, a2, b0, b1, b2)
+        else:
+            m = (a2 + b2) // 2
+            stack[top] = (a0, a1, a2, b0, b1, m)
+            stack[top + 1] = (a0, a1, m + 1, b0, b1, b2)
+        top += 2
+    return False
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -93,6 +179,7 @@ def _decide_all(
     frames, idx, out, stop, P, D, pfirst, dfirst, supported, env_pad, self_pad, ob_R, ob_t, pair_a, pair_b,
     local, rad, first, ball_slot, ball_c, ball_r, gf, map_pad, env_mask,
     ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, csat, key_min, inv_res, hv_first, hv_nb, hv_start,
+    fine_local, fine_rad, fine_ptr, fine_idx, in_local, in_rad, in_first, whole,
 ):  # fmt: skip
     B, O = ball_slot.shape[0], ob_kind.shape[0]
     hint = hv_start.copy()  # each body's last support point: the next configuration's start
@@ -135,14 +222,21 @@ def _decide_all(
             if verdict == -1:
                 break
             mg = map_pad * gf[b]
-            # the map's voxels: the spheres' test, else FCL's
+            # the map's voxels: the spheres' test, then the finer spheres' where those meet a voxel, else FCL's
             if verdict == APART and octree_mask[b] and ball_near_box(m0, m1, m2, M0, M1, M2, x, y, z, ball_r[b] + mg):
                 if ball_in_map(sat, csat, key_min, inv_res, x, y, z, ball_r[b] + mg):
                     if not placed[b]:
                         _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
                         placed[b] = True
-                    if spheres_meet_map(C, rad, first[b], first[b + 1], mg, sat, csat, key_min, inv_res):
+                    if fine_meets_map(
+                        F, C, rad, first[b], first[b + 1], mg, fine_local, fine_rad, fine_ptr, fine_idx, sat, csat,
+                        key_min, inv_res,
+                    ):  # fmt: skip
                         verdict = 0
+                        if whole and inner_meets_map(F, in_local, in_rad, in_first[b], in_first[b + 1],
+                                                     map_pad - TOL, sat, csat, key_min, inv_res):  # fmt: skip
+                            verdict = -1
+                            break
         if verdict != -1:
             for p in range(pair_a.shape[0]):
                 a, b = pair_a[p], pair_b[p]

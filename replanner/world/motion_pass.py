@@ -26,7 +26,7 @@ _FIELDS = (
     "tab_i", "tab_f", "table", "local", "rad", "first", "in_local", "in_rad", "in_first", "ball_slot", "ball_c",
     "ball_r", "gf", "env_mask", "ob_kind", "ob_inv", "ob_dim", "ob_id", "ob_exact", "ob_box", "octree_mask", "sat",
     "csat", "key_min", "inv_res", "pair_a", "pair_b", "P", "D", "pfirst", "dfirst", "supported", "ob_R", "ob_t",
-    "cpair_a", "cpair_b", "hv_first", "hv_nb", "hv_start",
+    "cpair_a", "cpair_b", "hv_first", "hv_nb", "hv_start", "fine_local", "fine_rad", "fine_ptr", "fine_idx", "whole",
 )  # fmt: skip
 
 
@@ -70,7 +70,8 @@ class BoundMotion:
         cp = convex
         self.bound = None if cp is None else _bind(
             *self.args, cp.P, cp.D, cp.pfirst, cp.dfirst, cp.supported, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b,
-            cp.hv_first, cp.hv_nb, cp.hv_start,
+            cp.hv_first, cp.hv_nb, cp.hv_start, layer.fine_local, layer.fine_rad, layer.fine_ptr, layer.fine_idx,
+            vol.whole,
         )  # fmt: skip
 
     def with_ahead(self, ahead: float) -> BoundMotion:
@@ -108,6 +109,7 @@ def _decided_bound(a, b, resolution, ahead, given, m):
         m.in_first, m.ball_slot, m.ball_c, m.ball_r, m.gf, m.env_mask, m.ob_kind, m.ob_inv, m.ob_dim, m.ob_id,
         m.ob_exact, m.ob_box, m.octree_mask, m.sat, m.csat, m.key_min, m.inv_res, m.pair_a, m.pair_b, m.P, m.D,
         m.pfirst, m.dfirst, m.supported, m.ob_R, m.ob_t, m.cpair_a, m.cpair_b, m.hv_first, m.hv_nb, m.hv_start,
+        m.fine_local, m.fine_rad, m.fine_ptr, m.fine_idx, m.whole,
     )  # fmt: skip
 
 
@@ -116,7 +118,8 @@ def _decided_motion(
     a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
     parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
     env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a,
-    pair_b, P, D, pfirst, dfirst, supported, ob_R, ob_t, cpair_a, cpair_b, hv_first, hv_nb, hv_start,
+    pair_b, P, D, pfirst, dfirst, supported, ob_R, ob_t, cpair_a, cpair_b, hv_first, hv_nb, hv_start, fine_local,
+    fine_rad, fine_ptr, fine_idx, whole,
 ):  # fmt: skip
     v, unsure, steps, Q = _sphere_motion(
         a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
@@ -134,7 +137,8 @@ def _decided_motion(
     _decide_all(
         frames, np.arange(u), out, True, P, D, pfirst, dfirst, supported, env_pad, self_pad, ob_R, ob_t, cpair_a,
         cpair_b, local, rad, first, ball_slot, ball_c, ball_r, gf, map_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id,
-        ob_exact, octree_mask, sat, csat, key_min, inv_res, hv_first, hv_nb, hv_start,
+        ob_exact, octree_mask, sat, csat, key_min, inv_res, hv_first, hv_nb, hv_start, fine_local, fine_rad, fine_ptr,
+        fine_idx, in_local, in_rad, in_first, whole,
     )  # fmt: skip
     rest = np.empty((u, a.shape[0]))
     r = 0

@@ -21,7 +21,7 @@ from .kernels import frames_of, kernel_array, key_bounds, summed_volume
 from .occupancy import OccupancyMap
 from .scene import WorldSnapshot
 from .selfcollision import may_collide_row
-from .spheres import cover
+from .spheres import cover, refined
 
 BOX, BALL, CYLINDER = 0, 1, 2
 CONTACT, UNSURE, FREE = -1, 0, 1  # what `SphereScene.classify` says of a configuration
@@ -52,10 +52,12 @@ class SphereScene:
         grow = _inradius_factor()
         slot, local, rad, body = [], [], [], []
         first, in_first, in_local, in_rad = [0], [0], [], []
+        placed = []  # (shape, T_slot_shape) of each body, for the map's finer second look
         for bi, b in enumerate(scene.bodies):
             sp = cover(b.raw_shape)
             s, off = robot.frame_offset(b.link)
             T = off @ b.T_link_body
+            placed.append((b.raw_shape, T))
             slot += [s] * len(sp)
             local.append(sp.center @ T[:3, :3].T + T[:3, 3])
             rad.append(sp.radius)
@@ -65,6 +67,7 @@ class SphereScene:
             in_local.append(ic @ T[:3, :3].T + T[:3, 3])
             in_rad.append(np.zeros(0) if sp.inner_radius is None else sp.inner_radius)
             in_first.append(in_first[-1] + len(ic))
+        self.fine_local, self.fine_rad, self.fine_ptr, self.fine_idx = refined(placed)
         self.in_local = np.ascontiguousarray(np.concatenate(in_local))
         self.in_rad = np.concatenate(in_rad)
         self.in_first = np.array(in_first, dtype=np.int64)
@@ -170,7 +173,7 @@ class VoxelVolume:
     def __init__(self, keys: np.ndarray, resolution: float, bounds: tuple[np.ndarray, np.ndarray] | None = None):
         keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
         if not len(keys):
-            self.inv_res, self.key_min = 1.0 / resolution, np.zeros(3, np.int64)
+            self.inv_res, self.key_min, self.whole = 1.0 / resolution, np.zeros(3, np.int64), True
             self.sat = self.csat = np.zeros((1, 1, 1), np.int32)
             return
         lo, hi = key_bounds(np.ascontiguousarray(keys)) if bounds is None else bounds  # keys' least and greatest
@@ -180,6 +183,7 @@ class VoxelVolume:
             f += 1
         keys = keys // f
         self.inv_res = 1.0 / (resolution * f)
+        self.whole = f == 1  # a cell is one voxel: a ball that meets an occupied cell meets a voxel
         self.key_min = lo // f  # floor division keeps the order: the merged keys' least and greatest
         n = hi // f - self.key_min + 1
         self.sat = np.zeros(tuple(n + 1), np.int32)

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.spatial
 import trimesh
 
 from .geometry import Box, ConvexHull, Cylinder, Shape, Sphere
@@ -20,6 +21,7 @@ from .geometry import Box, ConvexHull, Cylinder, Shape, Sphere
 TOLERANCE = 0.04  # [m] a sphere may reach beyond its body's face planes: tighter means more spheres
 MAX_DEPTH = 10  # halvings of a piece at most
 MIN_INNER = 0.01  # [m] smaller inner balls rarely decide a contact
+FINE = 0.02  # [m] the finer cover a near miss of the map is looked at again with (its spheres ~5 to one)
 
 
 @dataclass(frozen=True)
@@ -37,23 +39,70 @@ class Spheres:
         return len(self.radius)
 
 
-_COVERS: dict[tuple[int, float, int], tuple[Shape, Spheres]] = {}  # holds the shape: its id is not reused
+_COVERS: dict[tuple[Shape, float, int], Spheres] = {}
 
 
 def cover(shape: Shape, tolerance: float = TOLERANCE, max_depth: int = MAX_DEPTH) -> Spheres:
     """Spheres whose union contains `shape` (a concave mesh through its convex hull: still conservative); pieces
     are halved until their sphere reaches at most `tolerance` [m] beyond the shape's face planes (`max_depth`
-    halvings at most: `Spheres.excess` says how far they reach). Computed once per shape object (shapes are
-    immutable; a world version reuses its robot's and objects' shapes)."""
-    key = (id(shape), float(tolerance), int(max_depth))
+    halvings at most: `Spheres.excess` says how far they reach). Computed once per shape (shapes are immutable and
+    compare by value: the same part attached again, a planning job's copy of an object, find it)."""
+    key = (shape, float(tolerance), int(max_depth))
     hit = _COVERS.get(key)
-    if hit is not None and hit[0] is shape:
-        return hit[1]
+    if hit is not None:
+        return hit
     if len(_COVERS) > 4096:  # a long-running service with many edited objects: start afresh
         _COVERS.clear()
-    out = _cover(shape, tolerance, max_depth)
-    _COVERS[key] = (shape, out)
+    out = _COVERS[key] = _cover(shape, tolerance, max_depth)
     return out
+
+
+@dataclass(frozen=True)
+class Refined:
+    """A finer cover of a shape (`center` (F, 3), `radius` (F,) in its frame) and, per sphere k of its cover, the fine
+    spheres that meet it, `index[ptr[k]:ptr[k + 1]]`: a point of the shape near something lies in a sphere of the
+    cover that is near it too, and in a fine sphere that meets that one, so only those need a look."""
+
+    center: np.ndarray
+    radius: np.ndarray
+    ptr: np.ndarray
+    index: np.ndarray
+
+
+_REFINED: dict[tuple[Shape, float], Refined] = {}
+
+
+def refine(shape: Shape, tolerance: float = FINE) -> Refined:
+    """The finer cover of `shape` under its `cover`, computed once per shape."""
+    key = (shape, float(tolerance))
+    hit = _REFINED.get(key)
+    if hit is not None:
+        return hit
+    if len(_REFINED) > 4096:
+        _REFINED.clear()
+    coarse, fine = cover(shape), cover(shape, tolerance)
+    gap = np.linalg.norm(coarse.center[:, None] - fine.center[None], axis=2)
+    meet = gap <= coarse.radius[:, None] + fine.radius[None] + 1e-9  # rounded towards meeting
+    ptr = np.concatenate([[0], np.cumsum(meet.sum(axis=1))]).astype(np.int64)
+    out = _REFINED[key] = Refined(fine.center, fine.radius, ptr, np.nonzero(meet)[1].astype(np.int64))
+    return out
+
+
+def refined(placed: list[tuple[Shape, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The finer covers of shapes placed in frames (shape, T_frame_shape), stacked: centres (F, 3) in their frames,
+    radii (F,), and per sphere of the stacked covers the fine ones that meet it, index[ptr[k]:ptr[k + 1]]."""
+    center, radius, ptr, index, nf, ne = [], [], [], [], 0, 0
+    for shape, T in placed:
+        rf = refine(shape)
+        center.append(rf.center @ T[:3, :3].T + T[:3, 3])
+        radius.append(rf.radius)
+        ptr.append(rf.ptr[:-1] + ne)
+        index.append(rf.index + nf)
+        nf, ne = nf + len(rf.radius), ne + len(rf.index)
+    return (
+        np.ascontiguousarray(np.concatenate(center)).reshape(-1, 3), np.concatenate(radius),
+        np.concatenate([*ptr, [ne]]).astype(np.int64), np.concatenate(index).astype(np.int64),
+    )  # fmt: skip
 
 
 def _cover(shape: Shape, tolerance: float, max_depth: int) -> Spheres:
@@ -102,17 +151,17 @@ def _halve(pts: np.ndarray, planes: np.ndarray, tol: float, depth: int, centers:
         centers.append(c)
         radii.append(r)
         return
-    try:
-        hull = ConvexHull.of_points(pts)
-    except Exception:  # flat or degenerate: its bounding sphere is all there is
+    try:  # qhull itself: trimesh's hull (normals, winding) costs ~4x and only the edges are read
+        hull = scipy.spatial.ConvexHull(pts)
+    except (scipy.spatial.QhullError, ValueError):  # flat or degenerate: its bounding sphere is all there is
         centers.append(c)
         radii.append(r)
         return
-    v = hull.vertices
-    edges = np.unique(np.sort(trimesh.geometry.faces_to_edges(hull.faces), axis=1), axis=0)
+    v, tri = pts[hull.vertices], hull.simplices
+    edges = np.unique(np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1), axis=0)
     axis = int(np.argmax(np.ptp(v, axis=0)))
     plane = c[axis]
-    a, b = v[edges[:, 0]], v[edges[:, 1]]
+    a, b = pts[edges[:, 0]], pts[edges[:, 1]]
     cross = (a[:, axis] - plane) * (b[:, axis] - plane) < 0
     t = (plane - a[cross, axis]) / (b[cross, axis] - a[cross, axis])
     cut = a[cross] + t[:, None] * (b[cross] - a[cross])  # where the plane cuts the hull's edges
