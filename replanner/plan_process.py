@@ -100,6 +100,10 @@ def serve(conn: Connection, cancel_conn: Connection) -> None:
             conn.send(answer)
         except (EOFError, OSError):
             return
+        try:
+            stack.planner.prepare()  # between jobs, not inside the next one's deadline
+        except Exception:  # the next job says what is wrong, with its own answer
+            pass
         late_compiles.new_signatures()  # logs a specialization the warm-ups missed: the next cold start stalls there
 
 

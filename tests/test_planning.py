@@ -436,3 +436,29 @@ def test_the_planning_bench_plans_beside_a_person_on_a_fresh_map_each_time(panda
     o = out["overall"]
     assert o["with_person"] == 4 and o["success_rate"] == 1.0, o.get("failures")
     assert o["map_voxels"]["median"] > 10_000 and o["map_colliding_samples"] == 0 and o["colliding_samples"] == 0
+
+
+def test_after_an_edit_of_the_world_a_straight_plan_builds_no_layer(panda, panda_cfg):
+    """The layer's spheres and shapes (~1 ms a world version) are built for a search, not for the checks of the
+    ends and the straight line that FCL does as well: a goal after an attach or an edit that needs no search pays
+    FCL's scene alone; one that needs a search builds the layer and plans the path it always did."""
+    world = World(panda)
+    add_table(world)
+    planner = Planner.from_config(CollisionChecker.from_config(panda, world, panda_cfg.collision), panda_cfg.planning,
+                                  seed=3)  # fmt: skip
+    fast = planner.checker
+    assert fast.ready()  # built when the planner was
+    world.add("far", Box(size=(0.1, 0.1, 0.1)), make_transform((-0.6, 0.0, 0.05)))
+    assert not fast.ready()
+    res = planner.plan(A, B, deadline=2.0)
+    assert res.direct and not fast.ready()
+    world.add("post", Box(size=(0.2, 0.2, 0.2)), make_transform(panda.link_pose(A, "panda_hand")[:3, 3]))
+    with pytest.raises(StartInvalid, match="start is in collision"):
+        planner.plan(A, B, deadline=2.0)
+    assert not fast.ready()
+    world.remove("post")
+    world.add("wall", Box(size=(0.3, 0.05, 0.6)), make_transform((0.5, 0.0, 0.3)))
+    res = planner.plan(A, B, deadline=2.0)
+    assert not res.direct and fast.ready()
+    again = Planner.from_config(planner.checker.checker, panda_cfg.planning, seed=3).plan(A, B, deadline=2.0)
+    np.testing.assert_array_equal(res.path, again.path)  # a layer built for the search, not before: the same path

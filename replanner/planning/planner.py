@@ -188,6 +188,7 @@ class Planner:
         self.attempt_checks = int(attempt_checks)
         self._attempt: _Attempt | None = None
         self._free: set[bytes] | None = None  # during a plan: configurations found free in its world
+        self._last = None  # the checker of the last plan's padding
         self.shortcut_tries = int(shortcut_tries)
         self.planner_range = planner_range
         self.ik_restarts = ik_restarts
@@ -280,9 +281,9 @@ class Planner:
         return st
 
     # ------------------------------------------------------------------ goals
-    def resolve_goal(self, start: np.ndarray, goal, padding: float | None = None) -> np.ndarray:
+    def resolve_goal(self, start: np.ndarray, goal, padding: float | None = None, lazy: bool = False) -> np.ndarray:
         """Goal configuration: a JointGoal's q (checked), or IK of a PoseGoal nearest the start; `padding` [m]
-        against known objects (None: this planner's)."""
+        against known objects (None: this planner's). `lazy`: a joint goal is checked by FCL, not the layer."""
         r, checker = self.robot, self.paddings.get(padding, self.checker)
         if isinstance(goal, PoseGoal):
             try:
@@ -312,6 +313,8 @@ class Planner:
             raise GoalInvalid(str(err)) from None
         if q.ndim != 1:
             raise GoalInvalid(f"goal must be one configuration of {r.dof} joints, got shape {q.shape}")
+        if lazy and isinstance(checker, FastChecker):
+            checker = checker.checker
         contact = None if checker.is_valid(q) else checker.check(q)  # the layer first: FCL's tree only if needed
         if contact is not None:
             raise GoalInvalid(within_padding(checker, q, contact, "goal"), contact)
@@ -337,10 +340,19 @@ class Planner:
         """
         checker = self.paddings.get(padding, self.checker)
         base, self.checker = self.checker, checker  # the callbacks read self.checker
+        self._last = checker
         try:
             return self._plan(start, goal, planner, deadline, cancel)
         finally:
             self.checker, self._free = base, None
+
+    def prepare(self) -> None:
+        """Build the search's layer of the world as it is now, for this planner's padding and its last plan's: a plan
+        after an edit of the world builds none unless it searches, so the worker calls this between jobs (a replan
+        must not wait for it)."""
+        for c in (self.checker, self._last):
+            if isinstance(c, FastChecker) and not c.ready():
+                c.motion()
 
     def _plan(self, start, goal, planner: str | None, deadline: float, cancel: threading.Event | None) -> PlanResult:
         clock = self.clock
@@ -358,10 +370,13 @@ class Planner:
         except InvalidInputError as err:
             raise StartInvalid(str(err)) from None
         start = np.clip(start, r.limits.lower, r.limits.upper)  # a measured arm settles a hair past a limit
-        contact = None if self.checker.is_valid(start) else self.checker.check(start)
+        # after an edit of the world, FCL checks the ends and the straight line: the layer is built only for a search
+        lazy = isinstance(self.checker, FastChecker) and not self.checker.ready()
+        first = self.checker.checker if lazy else self.checker
+        contact = None if first.is_valid(start) else first.check(start)
         if contact is not None:
             raise StartInvalid(within_padding(self.checker, start, contact, "start"), contact)
-        q_goal = self.resolve_goal(start, goal)
+        q_goal = self.resolve_goal(start, goal, lazy=lazy)
         self._free = {start.tobytes(), np.asarray(q_goal, np.float64).tobytes()}
         t_end = t_begin + deadline * (1.0 - FINAL_CHECKS_SHARE)
         t_stop = t_begin + deadline * (1.0 + FINAL_CHECKS_SHARE)  # the promise: back by then, or failed
@@ -373,7 +388,9 @@ class Planner:
         fine = self.checker.path_resolution
         self._search_resolution = self.search_coarseness * self.paddings.checker.path_resolution
         direct = np.array([start, q_goal])
-        if self._motion_ok(start, q_goal, self._search_resolution) and exact(direct):
+        res = self._search_resolution
+        straight = first.path_valid(direct, res) if lazy else self._motion_ok(start, q_goal, res)
+        if straight and exact(direct):
             t = clock() - t_begin
             return PlanResult(direct, q_goal, name, 0, 0.0, 0.0, t, direct=True, raw_waypoints=2)
         t_searching = clock()

@@ -153,6 +153,10 @@ class PlanWorker(ABC):
                 self._on_answer(answer)
             if self.recorder is not None:
                 self.recorder.record(job, snapshot, answer)
+            self._between_jobs()
+
+    def _between_jobs(self) -> None:  # noqa: B027  (a hook: the thread backend prepares its planner)
+        """Work that must not wait inside the next job's deadline."""
 
     @abstractmethod
     def solve(self, job: PlanJob, snapshot: WorldSnapshot) -> tuple[Trajectory, PlanResult]:
@@ -186,6 +190,9 @@ class ThreadWorker(PlanWorker):
 
     def solve(self, job: PlanJob, snapshot: WorldSnapshot) -> tuple[Trajectory, PlanResult]:
         return plan_and_time(self.planner, self.gen, job, job.cancel)
+
+    def _between_jobs(self) -> None:
+        self.planner.prepare()
 
 
 class InlineWorker(PlanWorker):

@@ -41,6 +41,12 @@ class FastChecker:
         self.path_valid(np.vstack([q, q]))
         VoxelVolume(np.zeros((1, 3), np.int64), 0.01)  # the first map's tables
 
+    def ready(self) -> bool:
+        """Whether the layer of the world's present version is built (a new map alone costs next to nothing; an
+        edit or an attachment rebuilds the scene's spheres and shapes, ~1 ms)."""
+        c = self._cache
+        return c is not None and c[0] == self.checker.world.snapshot().version
+
     def passes(self) -> tuple[SphereScene, VoxelVolume, ConvexPass]:
         """The sphere layer, the map's voxel volume and the convex pass of the world as it is now."""
         c = self._layers()
