@@ -144,7 +144,8 @@ def test_the_map_near_a_person_is_decided_by_the_pass_as_fcl_does(panda, panda_c
     world = World(panda)
     add_table(world)
     world.set_occupancy(person_map((0.55, 0.25)))
-    checker = CollisionChecker(panda, world, padding=0.01, map_padding=0.04, allowed_contacts=[("panda_link0", "table")])
+    allowed = [("panda_link0", "table")]
+    checker = CollisionChecker(panda, world, padding=0.01, map_padding=0.04, allowed_contacts=allowed)
     fast = FastChecker(checker)
     layer, volume, convex = fast.passes()
     Q = panda.random_q(rng, 6000)

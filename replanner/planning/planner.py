@@ -313,8 +313,7 @@ class Planner:
             raise GoalInvalid(str(err)) from None
         if q.ndim != 1:
             raise GoalInvalid(f"goal must be one configuration of {r.dof} joints, got shape {q.shape}")
-        if lazy and isinstance(checker, FastChecker):
-            checker = checker.checker
+        checker = checker.checker if lazy and isinstance(checker, FastChecker) else checker
         contact = None if checker.is_valid(q) else checker.check(q)  # the layer first: FCL's tree only if needed
         if contact is not None:
             raise GoalInvalid(within_padding(checker, q, contact, "goal"), contact)
@@ -347,9 +346,8 @@ class Planner:
             self.checker, self._free = base, None
 
     def prepare(self) -> None:
-        """Build the search's layer of the world as it is now, for this planner's padding and its last plan's: a plan
-        after an edit of the world builds none unless it searches, so the worker calls this between jobs (a replan
-        must not wait for it)."""
+        """The search's layer of the world as it is now (this planner's padding, its last plan's), built between jobs:
+        a plan after an edit builds none unless it searches, and a replan must not wait for it."""
         for c in (self.checker, self._last):
             if isinstance(c, FastChecker) and not c.ready():
                 c.motion()

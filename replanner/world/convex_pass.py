@@ -85,6 +85,17 @@ def decide_batch(
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def _placed(F, P, k):
+    """Point P[k] of a body's frame, placed by that frame's pose F (4, 4): world x, y, z."""
+    x, y, z = P[k, 0], P[k, 1], P[k, 2]
+    return (
+        F[0, 0] * x + F[0, 1] * y + F[0, 2] * z + F[0, 3],
+        F[1, 0] * x + F[1, 1] * y + F[1, 2] * z + F[1, 3],
+        F[2, 0] * x + F[2, 1] * y + F[2, 2] * z + F[2, 3],
+    )
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def fine_meets_map(F, C, rad, first, last, grow, fine_local, fine_rad, fine_ptr, fine_idx, sat, csat, key_min,
                    inv_res) -> bool:  # fmt: skip
     """`spheres_meet_map` looked at again: the fine spheres (`SphereScene.fine_*`, placed by the body's frame F) of
@@ -94,10 +105,7 @@ def fine_meets_map(F, C, rad, first, last, grow, fine_local, fine_rad, fine_ptr,
             continue
         for e in range(fine_ptr[s], fine_ptr[s + 1]):
             f = fine_idx[e]
-            x, y, z = fine_local[f, 0], fine_local[f, 1], fine_local[f, 2]
-            wx = F[0, 0] * x + F[0, 1] * y + F[0, 2] * z + F[0, 3]
-            wy = F[1, 0] * x + F[1, 1] * y + F[1, 2] * z + F[1, 3]
-            wz = F[2, 0] * x + F[2, 1] * y + F[2, 2] * z + F[2, 3]
+            wx, wy, wz = _placed(F, fine_local, f)
             if ball_meets_cells(sat, csat, key_min, inv_res, wx, wy, wz, fine_rad[f] + grow):
                 return True
     return False
@@ -108,10 +116,7 @@ def inner_meets_map(F, in_local, in_rad, first, last, grow, sat, csat, key_min, 
     """Whether a ball inside the body (in_local[first:last], placed by its frame F), grown by `grow` (less than the
     padding: the padded body holds it), meets a voxel (cells of one voxel each): a contact for certain."""
     for k in range(first, last):
-        x, y, z = in_local[k, 0], in_local[k, 1], in_local[k, 2]
-        wx = F[0, 0] * x + F[0, 1] * y + F[0, 2] * z + F[0, 3]
-        wy = F[1, 0] * x + F[1, 1] * y + F[1, 2] * z + F[1, 3]
-        wz = F[2, 0] * x + F[2, 1] * y + F[2, 2] * z + F[2, 3]
+        wx, wy, wz = _placed(F, in_local, k)
         if ball_meets_cells(sat, csat, key_min, inv_res, wx, wy, wz, in_rad[k] + grow):
             return True
     return False
