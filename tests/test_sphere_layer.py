@@ -22,7 +22,7 @@ from replanner.world.sphere_layer import (
     map_box,
     primitive_distance,
 )
-from replanner.world.spheres import cover
+from replanner.world.spheres import cover, refine
 from replanner.world.transforms import make_transform
 from tests.oracle import HULL_MARGIN, PyBulletOracle
 
@@ -42,6 +42,15 @@ def test_spheres_cover_every_point_of_every_body(profile):
         w = rng.dirichlet(np.ones(len(surface)), size=500)  # points inside: mixtures of surface points
         assert _inside_any(surface, sp).all() and _inside_any(w @ surface, sp).all(), type(shape).__name__
         assert 0.0 <= sp.excess <= 0.06
+        # the finer cover the map is looked at again with: a point in a sphere of the cover is in one of the fine
+        # spheres listed under that sphere (only those are asked)
+        rf, pts = refine(shape), np.vstack([surface, w @ surface])
+        in_fine = np.linalg.norm(pts[:, None] - rf.center[None], axis=2) <= rf.radius[None] + 1e-9
+        in_coarse = np.linalg.norm(pts[:, None] - sp.center[None], axis=2) <= sp.radius[None] + 1e-9
+        for k in range(len(sp.radius)):
+            listed = rf.index[rf.ptr[k] : rf.ptr[k + 1]]
+            assert in_fine[in_coarse[:, k]][:, listed].any(axis=1).all(), (type(shape).__name__, k)
+        assert len(rf.radius) > len(sp.radius) or len(sp.radius) == 1
 
 
 def test_what_the_layer_calls_free_fcl_and_pybullet_call_free(profile):

@@ -161,9 +161,9 @@ def test_no_service_is_said_on_the_page_and_a_restart_is_picked_up(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     session = node_session(endpoint)  # connects to nothing yet
     view = CellView(cfg, session, port=free_port()).start()
-    browser = _browser()
-    serve = None
-    try:
+    browser = serve = None
+    try:  # the view's server thread must stop whatever fails: it would keep pytest from exiting
+        browser = _browser()
         browser.get(view.url)
         _until(
             lambda: "no service on replanner/@v1/panda" in browser.find_element("tag name", "body").text,
@@ -184,7 +184,8 @@ def test_no_service_is_said_on_the_page_and_a_restart_is_picked_up(tmp_path):
         serve = Proc("serve", replanner_cmd("serve", "-c", "panda", "--no-cameras", "-l", endpoint), tmp_path)
         _until(lambda: "WAITING" in browser.find_element("tag name", "body").text, 60, "the restart picked up")
     finally:
-        browser.quit()
+        if browser is not None:
+            browser.quit()
         view.stop()
         session.close()
         if serve is not None:
