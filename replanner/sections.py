@@ -264,11 +264,7 @@ class PlanningConfig(Section):
     shortcut_tries: int = Field(10, ge=0, description="Random shortcuts tried after the search (a count).")
     range: float | None = Field(1.5, gt=0.0, description="Planner step [rad]; null: OMPL's default.")
     search_coarseness: float = Field(
-        4.0,
-        ge=1.0,
-        le=10.0,
-        description="Motions are checked this much coarser while searching; the path found is "
-        "checked at collision.path_resolution (and searched again finely if that fails).",
+        4.0, ge=1.0, le=10.0, description="The search checks motions this much coarser; its path at full resolution."
     )
     tube_radius: float = Field(0.1, gt=0.0, le=1.0, description="Timed curve's max distance from the path [rad].")
     ik_restarts: int = Field(16, ge=1, le=256)
@@ -279,6 +275,9 @@ class PlanningConfig(Section):
     )
     position_tolerance: float = Field(0.002, gt=0.0, description="Cartesian goal position tolerance [m].")
     orientation_tolerance: float = Field(0.02, gt=0.0, description="Cartesian goal orientation tolerance [rad].")
+    map_margin: float = Field(
+        0.0, ge=0.0, le=0.2, description="Extra map padding of plans [m]; half collision.path_resolution: see docs"
+    )
     record_jobs: str | None = Field(
         None,
         description="A directory: every job the service plans is kept there with its world and outcome (one .npz "

@@ -23,6 +23,7 @@ from .planning.recording import JobRecorder
 from .trajectory import Trajectory, TrajectoryGenerator
 from .world.collision import CollisionChecker
 from .world.geometry import Shape
+from .world.paddings import with_map_margin
 from .world.robot import RobotModel
 from .world.scene import World, scene_from_config
 
@@ -94,8 +95,10 @@ def _wire(cfg, robot, static, seed, cameras, execute, plan_in, clock) -> Stack:
     for name, shape, pose in scene_from_config(cfg) if static is None else static:
         world.add(name, shape, pose)
     checker = CollisionChecker.from_config(robot, world, cfg.collision)
-    planner = Planner.from_config(checker, cfg.planning, seed=seed)
-    generator = TrajectoryGenerator.from_config(robot, checker, cfg.planning)
+    # plans (and the curves and swerves timed onto them) may keep a margin from the map the monitor does not ask for
+    planning = with_map_margin(checker, cfg.planning.map_margin)
+    planner = Planner.from_config(planning, cfg.planning, seed=seed)
+    generator = TrajectoryGenerator.from_config(robot, planning, cfg.planning)
     stack = Stack(cfg, robot, world, checker, planner, generator)
     if cameras and cfg.perception is not None and cfg.perception.sensors:
         stack.perception = Perception.from_config(cfg, robot, world)

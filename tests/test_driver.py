@@ -28,6 +28,27 @@ def test_timeline_replaces_from_the_start_time(panda):
     np.testing.assert_allclose(tl.state(99.0)[0], panda.home - 0.2)  # after the end: holds the end
 
 
+def test_splices_queued_behind_the_running_motion_never_drop_it(panda):
+    """A box dropped near the path: each replan lands a little later than the one before, on it, and a dozen may be
+    queued in a fraction of a second. The motion running now and each one queued stay (the account once kept the
+    newest 8: the running one gone, the robot was told to be where it had stood before, 1.085 rad off); segments that
+    ended long enough ago are forgotten."""
+    gen = TrajectoryGenerator(panda)
+    a = gen.time(np.array([panda.home, panda.home + 0.5]))
+    tl = Timeline(panda.home)
+    tl.add(a, 10.0, now=10.0)
+    now, land, queued = 10.1, 10.3, [a]
+    for _ in range(12):  # each lands on the last: from its state when it lands
+        q = tl.state(land)[0]
+        tl.add(b := gen.time(np.array([q, q + 0.05])), land, now)
+        queued.append(b)
+        now, land = now + 0.01, land + 0.01
+    np.testing.assert_allclose(tl.state(now)[0], a.state_at(now - 10.0)[0])
+    assert [tr for _, tr in tl.segments()] == queued
+    tl.add(gen.time(np.array([tl.state(60.0)[0], panda.home])), 60.0, now=60.0)  # a minute on
+    assert len(tl.segments()) == 8  # the ones long over are forgotten, the newest kept
+
+
 def test_a_late_motion_from_rest_starts_on_arrival_a_late_splice_does_not(panda):
     gen = TrajectoryGenerator(panda)
     a = gen.time(np.array([panda.home, panda.home + 0.3]))

@@ -8,8 +8,9 @@ import pytest
 
 from replanner.bench.scenes import table
 from replanner.control import Timeline
+from replanner.errors import ReplannerError
 from replanner.monitor import MapPathCheck, Monitor, ScenePathCheck, Verdict, build_monitor
-from replanner.monitor.checks import Check
+from replanner.monitor.checks import Check, MotionView
 from replanner.stack import build_stack
 from replanner.world.geometry import Box
 from replanner.world.occupancy import OccupancyMap, voxel_keys
@@ -47,6 +48,27 @@ def test_the_view_starts_at_the_measured_state(scene):
     np.testing.assert_allclose(view.path[-1], B, atol=1e-9)
     assert 0.4 < view.progress < 0.6 and view.segment == (10.0, traj)
     assert monitor.view(timeline, 9.0, q) is None  # nothing runs yet
+
+
+def test_a_splice_queued_behind_another_cuts_it_short_in_the_view(scene):
+    """Replans queued one behind the other (each lands on the last, a little later): the view follows each only until
+    the next takes over. Something on the rest of the first, which the second replaced, does not block the path
+    (the view once held every queued trajectory whole: the arm replanned again and again, one splice per check)."""
+    stack, traj, timeline = scene
+    gen, robot = stack.generator, stack.robot
+    q1 = traj.state_at(0.6)[0]
+    r1 = gen.splice(traj, 0.6, np.array([q1, q1 + [0.5, -0.5, 0.0, 0.4, 0.0, 0.0, 0.0], B]))
+    timeline.add(r1, 10.6)
+    r2 = gen.splice(r1, 0.15, np.array([r1.state_at(0.15)[0], B]))
+    timeline.add(r2, 10.75)
+    hand = robot.link_pose(r1.state_at(r1.duration * 0.6)[0], "panda_hand")[:3, 3]
+    stack.world.set_occupancy(_map(_blob(hand)))  # on the rest of r1, past where r2 takes over
+    check, monitor = MapPathCheck(stack.checker), Monitor([])
+    assert not stack.checker.path_valid(monitor._grid(r1, False)[1], octree_only=True)
+    assert stack.checker.path_valid(monitor._grid(r2, False)[1], octree_only=True)
+    view = monitor.view(timeline, 10.2, timeline.state(10.2)[0])
+    assert check(view, fresh=True).clear
+    np.testing.assert_allclose(view.path[-1], B)
 
 
 def test_a_new_map_is_checked_by_what_it_added(scene, monkeypatch):
@@ -121,3 +143,43 @@ def test_close_checks_brake_near_what_the_cameras_see(scene):
     report = monitor.check_close(view, path_clear=False)
     assert report.blocking is not None and report.blocking.check == "safety_distance"
     assert report.blocking.clearance < stack.cfg.controller.safety_distance
+
+
+def _box_surface(center, size, res=0.01) -> OccupancyMap:
+    g = np.linspace(-size / 2, size / 2, int(size / 0.005) + 1)
+    P = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    return OccupancyMap.from_points(P[(np.abs(P) >= size / 2 - 1e-9).any(1)] + center, res)
+
+
+@pytest.mark.parametrize("margin", [0.01, 0.0])
+def test_a_replan_around_what_the_cameras_see_is_clear_for_the_monitor(panda_cfg, panda, margin):
+    """A path is clear of the map by its padding where it was checked, by half a path resolution less in between;
+    the monitor samples a fresh replan's curve elsewhere. Plans that keep that half resolution more from the map
+    (planning.map_margin 0.01) are never blocked the moment they land; without the margin (the default) some are, and
+    the monitor sees each as one more replan. Boxes of voxels where the hand will be, replans spliced on from ever
+    later times."""
+    cfg = panda_cfg.override({"planning": {"map_margin": margin}})
+    stack = build_stack(cfg, robot=panda, static=[table()], cameras=False, seed=0)
+    motion = stack.generator.time(np.array([A, B]), velocity_scale=0.4)
+    rng = np.random.default_rng(7)
+    spliced, blocked = 0, []
+    for k in range(30):
+        size, t_box = rng.uniform(0.08, 0.16), rng.uniform(0.9, 1.6)
+        hand = panda.link_pose(motion.state_at(t_box)[0], "panda_hand")[:3, 3]
+        stack.world.set_occupancy(_box_surface(hand + rng.uniform(-0.03, 0.03, 3), size))
+        for land in np.arange(t_box - 1.0, t_box - 0.4, 0.04):
+            try:
+                path = stack.planner.plan(motion.state_at(land)[0], B, deadline=1.0).path
+                new = stack.generator.splice(motion, land, path)
+            except ReplannerError:
+                continue
+            spliced += 1
+            grid = Monitor([])._grid(new, False)[1]
+            view = MotionView(0.0, grid[0], grid, 0.0, (0.0, new), (new, k, land), 0.0, None)
+            if not MapPathCheck(stack.checker)(view, fresh=True).clear:
+                blocked.append((k, round(land - t_box, 2)))
+    assert spliced > 250
+    if margin > 0:
+        assert blocked == [], f"replans blocked by the monitor at once (box, landing time): {blocked}"
+    else:  # the test can see the trouble: without the margin it is there
+        assert blocked

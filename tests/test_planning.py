@@ -422,6 +422,28 @@ def test_shortcutting_asks_about_each_straight_motion_once(planner, wall_world):
     assert len(paths[0]) < len(raw) and checker.check_path(paths[0]).valid
 
 
+def test_every_segment_of_a_shortcut_path_was_checked_as_itself(planner, wall_world):
+    """A random shortcut keeps pieces of the two segments it cuts: each is checked as a segment of its own (its
+    configurations are not those checked along the whole segment, and one of them may touch the padding), so every
+    segment of the result is a motion the check was asked about, ends and all."""
+    checker = wall_world[1]
+    path = planner.plan(A, B, deadline=5.0).path
+    t = np.linspace(0.0, 1.0, 5)[:-1, None]
+    raw = np.vstack([a + t * (b - a) for a, b in zip(path[:-1], path[1:])] + [path[-1:]])
+    for seed in range(5):
+        ok: set[tuple[bytes, bytes]] = set()
+
+        def motion_ok(a, b, ok=ok):
+            free = checker.path_valid(np.array([a, b]), 0.05)
+            if free:
+                ok.add((a.tobytes(), b.tobytes()))
+            return free
+
+        W = shortcut(raw, motion_ok, np.random.default_rng(seed), tries=10)
+        assert len(W) < len(raw)
+        assert all((a.tobytes(), b.tobytes()) in ok for a, b in zip(W[:-1], W[1:])), seed
+
+
 def test_the_planning_bench_plans_beside_a_person_on_a_fresh_map_each_time(panda_cfg):
     """`bench planning --person`: a person-sized column of voxels beside each problem, clear of its start and goal;
     the plans avoid it (FCL on the timed trajectory, unpadded) and its voxels are counted."""

@@ -278,7 +278,7 @@ def run(
             occ = None
             if person:
                 rng = np.random.default_rng([seed, FAMILIES.index(family), p.index])
-                occ = _stand_person(stack.checker, p, rng, cfg.perception.resolution)
+                occ = _stand_person(planner.exact, p, rng, cfg.perception.resolution)  # clear for the planner
             if occ is not None:  # the job's map is new to the planner: nothing of it built yet
                 stack.world.set_occupancy(OccupancyMap(occ.keys, occ.resolution, trusted=True))
                 row["map_voxels"] = len(occ)

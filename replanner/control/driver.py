@@ -66,7 +66,7 @@ class KinematicDriver:
 
     def execute(self, traj: Trajectory, start_time: float) -> None:
         """Run `traj` from `start_time` [clock s] on, replacing whatever would run from then."""
-        self.timeline.add(traj, start_time)
+        self.timeline.add(traj, start_time, self.clock())
 
     def state(self, t: float | None = None) -> JointState:
         t = self.clock() if t is None else t

@@ -49,7 +49,7 @@ class Moves:
 
     def send(self, traj: Trajectory, start: float) -> None:
         """Run `traj` from `start` [clock s] on, replacing what would run from then."""
-        self.timeline.add(traj, start)
+        self.timeline.add(traj, start, self.clock())
         self._execute(traj, start)
         self.sent += 1
 

@@ -10,6 +10,7 @@ import numpy as np
 from ..errors import InvalidInputError
 
 JUMP_TOLERANCE = 0.02  # [rad] a received trajectory starts this close to where the robot is told to be
+HISTORY = 2.0  # [s] a segment is forgotten this long after it ended (a late joint state asks about the past)
 MIN_STOP = 0.05  # [s] the shortest stop along the path
 
 
@@ -26,7 +27,8 @@ class Timeline:
     """Trajectories, each from an absolute start time [clock s]; one added at `start` replaces what would run then.
 
     Used on both sides of the wire: the robot follows its timeline, the controller keeps the same account of what
-    it sent. Only the newest `keep` segments are kept: time runs forward, older ones can no longer be active.
+    it sent. A segment is forgotten once `keep` others are held and it ended HISTORY before now: never one that runs
+    or is still to run, however many splices are queued behind it.
 
     Args:
         q0: the rest configuration [rad] before the first trajectory.
@@ -39,11 +41,16 @@ class Timeline:
         self._lock = threading.Lock()
         self.lag = 0.0  # [s] the last motion from rest started this late (the robot's side; see `receive`)
 
-    def add(self, traj: Timed, start: float) -> None:
-        """Run `traj` from `start` on; whatever was to start at or after `start` is dropped."""
+    def add(self, traj: Timed, start: float, now: float | None = None) -> None:
+        """Run `traj` from `start` on; whatever was to start at or after `start` is dropped. `now` [clock s] (default:
+        `start`, no later than it) says which segments ended long enough ago to be forgotten."""
         with self._lock:
-            kept = [(t, tr) for t, tr in self._segments if t < start]
-            self._segments = [*kept, (float(start), traj)][-self._keep :]
+            segs = [(t, tr) for t, tr in self._segments if t < start]
+            segs.append((float(start), traj))
+            past = (start if now is None else min(now, start)) - HISTORY
+            while len(segs) > self._keep and segs[1][0] <= past:
+                segs.pop(0)
+            self._segments = segs
 
     def receive(self, traj: Timed, start: float, now: float, tolerance: float | None = JUMP_TOLERANCE) -> float:
         """The robot's side: run `traj` from `start`, or from `now` if it arrives late to a robot at rest and starts
@@ -70,7 +77,7 @@ class Timeline:
             )
         if starts_at_rest and not self.moving(start + shifts[k]):
             self.lag = shifts[k]  # a new motion from rest: as late as it starts
-        self.add(traj, start + shifts[k])
+        self.add(traj, start + shifts[k], now)
         return shifts[k]
 
     def hold(self, q, t: float) -> None:
@@ -91,7 +98,7 @@ class Timeline:
         # the slowing adds k' qd (k' peaks at 1.5 / D) to the path's own k^2 qdd: with D = 4 |qd| / a the sum stays
         # within 1.1 a even where the path itself brakes at its limit (within a where it does not)
         D = max(MIN_STOP, 4.0 * float(np.max(np.abs(qd) / np.asarray(acceleration, dtype=float))))
-        self.add(Slowed(traj, t0, D), start)
+        self.add(Slowed(traj, t0, D), start, now)
         return now + D
 
     def shift(self, traj: Timed, start: float) -> None:

@@ -110,12 +110,14 @@ class Monitor:
         i = int(window[np.argmin(np.linalg.norm(q_grid[window] - q, axis=1))])
         later = timeline.later(now)
         key: tuple = (traj, to_curve_end)  # the objects, not their ids: an id is reused once its object is gone
-        if later:  # a spliced trajectory takes over at its start: the old one only runs until then
+        if later:  # a spliced trajectory takes over at its start: each one before it runs only until then
             s_switch = traj.s_at(later[0][0] - start)
-            upto = q_grid[i + 1 :][s_grid[i + 1 :] < s_switch]
-            pts = [q[None], upto, later[0][1].state_at(0.0)[0][None]]
-            for _, tr in later:
-                pts.append(self._grid(tr, False)[1])
+            pts = [q[None], q_grid[i + 1 :][s_grid[i + 1 :] < s_switch]]
+            for k, (t_k, tr) in enumerate(later):
+                s_k, q_k = self._grid(tr, False)
+                if k + 1 < len(later):  # a splice queued behind it replaces the rest of it
+                    q_k = q_k[s_k < tr.s_at(later[k + 1][0] - t_k)]
+                pts += [tr.state_at(0.0)[0][None], q_k]
             key += tuple(tr for _, tr in later)
         else:
             pts = [q[None], q_grid[i + 1 :]]

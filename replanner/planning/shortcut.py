@@ -51,7 +51,9 @@ def shortcut(
             continue
         pa = W[ia] + (a - acc[ia]) / seg[ia] * (W[ia + 1] - W[ia])
         pb = W[ib] + (b - acc[ib]) / seg[ib] * (W[ib + 1] - W[ib])
-        if motion_ok(pa, pb):
+        # the pieces kept of the cut segments are checked as segments of their own: checked at other configurations
+        # than the whole, a line that passes within the padding between two of them may touch it at one of these
+        if motion_ok(pa, pb) and reachable(W[ia], pa) and reachable(pb, W[ib + 1]):
             W = np.vstack([W[: ia + 1], pa, pb, W[ib + 1 :]])
             misses = 0
         else:

@@ -38,6 +38,24 @@ def padded_checker(checker: CollisionChecker, padding: float) -> CollisionChecke
     )
 
 
+def with_map_margin(checker: CollisionChecker, margin: float) -> CollisionChecker:
+    """The checker plans are made with: `checker`'s world and paddings, `margin` [m] more from the map (the checker
+    itself for 0). A path is clear of the map by its padding where it is checked, by that less half its resolution
+    in between: the monitor samples it elsewhere, and a margin of half the resolution keeps it clear for the monitor
+    (docs/architecture.md: what that costs and why the default is 0)."""
+    if margin == 0:
+        return checker
+    return CollisionChecker(
+        checker.robot,
+        checker.world,
+        padding=checker.padding,
+        map_padding=checker.map_padding + float(margin),
+        path_resolution=checker.path_resolution,
+        allowed_contacts=checker.allowed_contacts,
+        check_limits=checker.check_limits,
+    )
+
+
 class Paddings:
     """`checker` at other paddings, built on demand (their geometry too: before any deadline), the last KEEP kept.
 
