@@ -64,8 +64,8 @@ def test_a_splice_queued_behind_another_cuts_it_short_in_the_view(scene):
     hand = robot.link_pose(r1.state_at(r1.duration * 0.6)[0], "panda_hand")[:3, 3]
     stack.world.set_occupancy(_map(_blob(hand)))  # on the rest of r1, past where r2 takes over
     check, monitor = MapPathCheck(stack.checker), Monitor([])
-    assert not stack.checker.path_valid(monitor._grid(r1, False)[1], octree_only=True)
-    assert stack.checker.path_valid(monitor._grid(r2, False)[1], octree_only=True)
+    assert not stack.checker.path_valid(monitor.grid(r1, False)[1], octree_only=True)
+    assert stack.checker.path_valid(monitor.grid(r2, False)[1], octree_only=True)
     view = monitor.view(timeline, 10.2, timeline.state(10.2)[0])
     assert check(view, fresh=True).clear
     np.testing.assert_allclose(view.path[-1], B)
@@ -174,7 +174,7 @@ def test_a_replan_around_what_the_cameras_see_is_clear_for_the_monitor(panda_cfg
             except ReplannerError:
                 continue
             spliced += 1
-            grid = Monitor([])._grid(new, False)[1]
+            grid = Monitor([]).grid(new, False)[1]
             view = MotionView(0.0, grid[0], grid, 0.0, (0.0, new), (new, k, land), 0.0, None)
             if not MapPathCheck(stack.checker)(view, fresh=True).clear:
                 blocked.append((k, round(land - t_box, 2)))

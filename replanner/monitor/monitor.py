@@ -78,7 +78,7 @@ class Monitor:
         self.padding: float | None = None  # the active goal's padding from known objects [m]: set by the controller
 
     # ------------------------------------------------------------------ the motion as it stands
-    def _grid(self, traj: Trajectory, to_curve_end: bool) -> tuple[np.ndarray, np.ndarray]:
+    def grid(self, traj: Trajectory, to_curve_end: bool) -> tuple[np.ndarray, np.ndarray]:
         """Points of the trajectory's curve every GRID_STEP of arc, to where it stops (or to the curve's end)."""
         key = (id(traj), to_curve_end)
         hit = self._grid_cache.get(key)
@@ -102,7 +102,7 @@ class Monitor:
         if seg is None or not isinstance(seg[1], Trajectory):  # at rest where the record was settled: no path
             return None
         start, traj = seg
-        s_grid, q_grid = self._grid(traj, to_curve_end)
+        s_grid, q_grid = self.grid(traj, to_curve_end)
         s_exp = traj.s_at(now - start)
         window = np.flatnonzero((s_grid >= s_exp - 0.5) & (s_grid <= s_exp + 0.1))
         if not len(window):
@@ -114,7 +114,7 @@ class Monitor:
             s_switch = traj.s_at(later[0][0] - start)
             pts = [q[None], q_grid[i + 1 :][s_grid[i + 1 :] < s_switch]]
             for k, (t_k, tr) in enumerate(later):
-                s_k, q_k = self._grid(tr, False)
+                s_k, q_k = self.grid(tr, False)
                 if k + 1 < len(later):  # a splice queued behind it replaces the rest of it
                     q_k = q_k[s_k < tr.s_at(later[k + 1][0] - t_k)]
                 pts += [tr.state_at(0.0)[0][None], q_k]
@@ -153,7 +153,7 @@ class Monitor:
     def check_start(self, traj: Trajectory, now: float, q: np.ndarray) -> Report:
         """Would the speed checks let `traj`, not yet sent, start from the arm at `q` now? (Not kept for
         `check_speed`: that one judges the motion that runs.)"""
-        _, q_grid = self._grid(traj, False)
+        _, q_grid = self.grid(traj, False)
         view = MotionView(now, q, np.vstack([q[None], q_grid[1:]]), 0.0, (now, traj), (traj, False), 0.0, self.padding)
         return Report(tuple(check(view, False) for check in self.speed_checks))
 
