@@ -44,21 +44,16 @@ log = logging.getLogger(__name__)
 ou.setLogLevel(ou.LogLevel.LOG_WARN)
 FINAL_CHECKS_SHARE = 0.03  # of a deadline: the search stops this much early, FCL's final check this much late
 CONFIRM_CHUNK = 512  # configurations FCL checks between two looks at the deadline (~0.4 ms alone, a few under load)
+CONFIRM_FAR = (0.05, 2048)  # while 50 ms are left, chunks this large: two threads share them (halves of 256 do not)
 START_LIMIT_SLACK = 1e-3  # [rad] a start this far past a joint limit (an arm at its limit, measured) plans from it
 
 PLANNERS = {
-    "RRTConnect": og.RRTConnect,
-    "RRT": og.RRT,
-    "RRTstar": og.RRTstar,
-    "InformedRRTstar": og.InformedRRTstar,
-    "BITstar": og.BITstar,
-    "AORRTC": og.AORRTC,
-    "PRM": og.PRM,
-    "PRMstar": og.PRMstar,
-    "KPIECE1": og.KPIECE1,
-    "BKPIECE1": og.BKPIECE1,
-    "LBKPIECE1": og.LBKPIECE1,
-}
+    name: getattr(og, name)
+    for name in (
+        "RRTConnect", "RRT", "RRTstar", "InformedRRTstar", "BITstar", "AORRTC", "PRM", "PRMstar", "KPIECE1", "BKPIECE1",
+        "LBKPIECE1",
+    )
+}  # fmt: skip
 
 
 def planner_class(name: str):
@@ -468,15 +463,18 @@ class Planner:
         front of it only ever clear), a chunk at a time: past `t_stop` the plan fails rather than return late."""
         exact = self.checker.checker if isinstance(self.checker, FastChecker) else self.checker
         Q, _ = exact.interpolate(W)
-        for i in range(0, len(Q), CONFIRM_CHUNK):
-            if self.clock() > t_stop:
+        i = 0
+        while i < len(Q):
+            now = self.clock()
+            if now > t_stop:
                 raise NoSolution(
                     f"a path was found, too late for FCL's check of it within the {deadline:.3f} s deadline "
-                    f"({i} of {len(Q)} configurations checked after {self.clock() - t_begin:.3f} s); give a longer "
-                    "deadline"
+                    f"({i} of {len(Q)} configurations checked after {now - t_begin:.3f} s); give a longer deadline"
                 )
-            if not exact.is_valid_batch(Q[i : i + CONFIRM_CHUNK], split=True).all():
+            n = CONFIRM_FAR[1] if t_stop - now > CONFIRM_FAR[0] else CONFIRM_CHUNK
+            if not exact.is_valid_batch(Q[i : i + n], split=True).all():
                 return False
+            i += n
         return True
 
     def _solution(self, ss) -> np.ndarray:

@@ -75,11 +75,8 @@ def decide_batch(
     out = np.zeros(len(idx), np.int8)
     _decide_all(
         np.ascontiguousarray(frames), np.asarray(idx, np.int64), out, stop, cp.P, cp.D, cp.pfirst, cp.dfirst,
-        cp.supported, layer.env_pad, layer.self_pad, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b, layer.local, layer.radius,
-        layer.first, layer.ball_slot, layer.ball_c, layer.ball_r, layer.gf, layer.map_pad, layer.env_mask,
-        layer.ob_kind, layer.ob_inv, layer.ob_dim, layer.ob_id, layer.ob_exact, layer.octree_mask, vol.sat,
-        vol.csat, vol.key_min, vol.inv_res, cp.hv_first, cp.hv_nb, cp.hv_start, layer.fine_local, layer.fine_rad,
-        layer.fine_ptr, layer.fine_idx, layer.in_local, layer.in_rad, layer.in_first, vol.whole,
+        cp.supported, layer.env_pad, layer.self_pad, layer.map_pad, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b,
+        cp.hv_first, cp.hv_nb, cp.hv_start, layer.kernel_args(vol),
     )  # fmt: skip
     return out
 
@@ -181,11 +178,15 @@ def _merge(verdict, r):
 
 @numba.njit(cache=True, nogil=True)
 def _decide_all(
-    frames, idx, out, stop, P, D, pfirst, dfirst, supported, env_pad, self_pad, ob_R, ob_t, pair_a, pair_b,
-    local, rad, first, ball_slot, ball_c, ball_r, gf, map_pad, env_mask,
-    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, octree_mask, sat, csat, key_min, inv_res, hv_first, hv_nb, hv_start,
-    fine_local, fine_rad, fine_ptr, fine_idx, in_local, in_rad, in_first, whole,
+    frames, idx, out, stop, P, D, pfirst, dfirst, supported, env_pad, self_pad, map_pad, ob_R, ob_t, pair_a, pair_b,
+    hv_first, hv_nb, hv_start, L,
 ):  # fmt: skip
+    """`decide_batch`'s verdicts into out, L the sphere layer's `LayerArgs` (pair_a, pair_b: the scene's pairs)."""
+    local, rad, first, in_local, in_rad, in_first = L.local, L.rad, L.first, L.in_local, L.in_rad, L.in_first
+    ball_slot, ball_c, ball_r, gf, env_mask = L.ball_slot, L.ball_c, L.ball_r, L.gf, L.env_mask
+    ob_kind, ob_inv, ob_dim, ob_id, ob_exact = L.ob_kind, L.ob_inv, L.ob_dim, L.ob_id, L.ob_exact
+    octree_mask, sat, csat, key_min, inv_res, whole = L.octree_mask, L.sat, L.csat, L.key_min, L.inv_res, L.whole
+    fine_local, fine_rad, fine_ptr, fine_idx = L.fine_local, L.fine_rad, L.fine_ptr, L.fine_idx
     B, O = ball_slot.shape[0], ob_kind.shape[0]
     hint = hv_start.copy()  # each body's last support point: the next configuration's start
     BC, C = np.empty((B, 3)), np.empty((local.shape[0], 3))

@@ -10,11 +10,11 @@ import copy
 
 import numba
 import numpy as np
-from numba.core import types
 from numba.experimental import structref
 
 from .convex_pass import ConvexPass, _decide_all
 from .kernels import frames_of
+from .layer_args import Unliteral
 from .selfcollision import may_collide_row
 from .sphere_layer import CONTACT, UNSURE, SphereScene, VoxelVolume, verdicts
 
@@ -22,22 +22,18 @@ STRIDE = 8  # every 8th configuration first: a contact is usually found early
 AHEAD = 0.02  # [m] the margin of an anchor's check: free with it, its neighbours within that travel are too
 OUTSIDE = -2  # what `BoundMotion` says of a motion with an end outside the joint limits
 _FIELDS = (
-    "lo", "hi", "reach", "layer_reach", "env_pad", "map_pad", "self_pad", "F", "prismatic", "joints", "parents",
-    "tab_i", "tab_f", "table", "local", "rad", "first", "in_local", "in_rad", "in_first", "ball_slot", "ball_c",
-    "ball_r", "gf", "env_mask", "ob_kind", "ob_inv", "ob_dim", "ob_id", "ob_exact", "ob_box", "octree_mask", "sat",
-    "csat", "key_min", "inv_res", "pair_a", "pair_b", "P", "D", "pfirst", "dfirst", "supported", "ob_R", "ob_t",
-    "cpair_a", "cpair_b", "hv_first", "hv_nb", "hv_start", "fine_local", "fine_rad", "fine_ptr", "fine_idx", "whole",
+    "lo", "hi", "reach", "layer_reach", "env_pad", "map_pad", "self_pad", "L", "P", "D", "pfirst", "dfirst",
+    "supported", "ob_R", "ob_t", "cpair_a", "cpair_b", "hv_first", "hv_nb", "hv_start",
 )  # fmt: skip
 
 
 @structref.register
-class _BoundType(types.StructRef):
-    def preprocess_fields(self, fields):
-        return tuple((name, types.unliteral(t)) for name, t in fields)
+class _BoundType(Unliteral):
+    pass
 
 
 class _Bound(structref.StructRefProxy):
-    """The decided motion's arguments as one compiled object: a call unboxes it at once, not 47 arrays (3 us)."""
+    """The decided motion's arguments as one compiled object: a call unboxes it at once, not 20 arrays."""
 
 
 structref.define_proxy(_Bound, _BoundType, list(_FIELDS))
@@ -65,13 +61,12 @@ class BoundMotion:
             np.asarray(lo if limits else np.full(dof, -np.inf), np.float64),
             np.asarray(hi if limits else np.full(dof, np.inf), np.float64),
             np.ascontiguousarray(reach, dtype=np.float64), layer.reach, layer.env_pad, layer.map_pad, layer.self_pad,
-            *layer.kernel_args(vol),
+            layer.kernel_args(vol),
         )  # fmt: skip
         cp = convex
         self.bound = None if cp is None else _bind(
             *self.args, cp.P, cp.D, cp.pfirst, cp.dfirst, cp.supported, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b,
-            cp.hv_first, cp.hv_nb, cp.hv_start, layer.fine_local, layer.fine_rad, layer.fine_ptr, layer.fine_idx,
-            vol.whole,
+            cp.hv_first, cp.hv_nb, cp.hv_start,
         )  # fmt: skip
 
     def with_ahead(self, ahead: float) -> BoundMotion:
@@ -102,43 +97,21 @@ def _bind(*args):
 
 @numba.njit(cache=True, nogil=True)
 def _decided_bound(a, b, resolution, ahead, given, m):
-    """`_decided_motion` of the arguments bound in m."""
-    return _decided_motion(
-        a, b, resolution, ahead, given, m.lo, m.hi, m.reach, m.layer_reach, m.env_pad, m.map_pad, m.self_pad, m.F,
-        m.prismatic, m.joints, m.parents, m.tab_i, m.tab_f, m.table, m.local, m.rad, m.first, m.in_local, m.in_rad,
-        m.in_first, m.ball_slot, m.ball_c, m.ball_r, m.gf, m.env_mask, m.ob_kind, m.ob_inv, m.ob_dim, m.ob_id,
-        m.ob_exact, m.ob_box, m.octree_mask, m.sat, m.csat, m.key_min, m.inv_res, m.pair_a, m.pair_b, m.P, m.D,
-        m.pfirst, m.dfirst, m.supported, m.ob_R, m.ob_t, m.cpair_a, m.cpair_b, m.hv_first, m.hv_nb, m.hv_start,
-        m.fine_local, m.fine_rad, m.fine_ptr, m.fine_idx, m.whole,
-    )  # fmt: skip
-
-
-@numba.njit(cache=True, nogil=True)
-def _decided_motion(
-    a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
-    parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
-    env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a,
-    pair_b, P, D, pfirst, dfirst, supported, ob_R, ob_t, cpair_a, cpair_b, hv_first, hv_nb, hv_start, fine_local,
-    fine_rad, fine_ptr, fine_idx, whole,
-):  # fmt: skip
+    """`BoundMotion.decided` of the arguments bound in m: the spheres, then the convex pass on what they left."""
+    L = m.L
     v, unsure, steps, Q = _sphere_motion(
-        a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
-        parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
-        env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a,
-        pair_b,
-    )  # fmt: skip
+        a, b, resolution, ahead, given, m.lo, m.hi, m.reach, m.layer_reach, m.env_pad, m.map_pad, m.self_pad, L
+    )
     u = unsure.shape[0]
     if v != 1 or u == 0:
         return v, Q[:0]
     frames = np.empty((u, a.shape[0] + 1, 4, 4))
     for i in range(u):
-        frames_of(Q, unsure[i], F, prismatic, joints, parents, frames, i)
+        frames_of(Q, unsure[i], L.Fj, L.prismatic, L.joints, L.parents, frames, i)
     out = np.zeros(u, np.int8)
     _decide_all(
-        frames, np.arange(u), out, True, P, D, pfirst, dfirst, supported, env_pad, self_pad, ob_R, ob_t, cpair_a,
-        cpair_b, local, rad, first, ball_slot, ball_c, ball_r, gf, map_pad, env_mask, ob_kind, ob_inv, ob_dim, ob_id,
-        ob_exact, octree_mask, sat, csat, key_min, inv_res, hv_first, hv_nb, hv_start, fine_local, fine_rad, fine_ptr,
-        fine_idx, in_local, in_rad, in_first, whole,
+        frames, np.arange(u), out, True, m.P, m.D, m.pfirst, m.dfirst, m.supported, m.env_pad, m.self_pad, m.map_pad,
+        m.ob_R, m.ob_t, m.cpair_a, m.cpair_b, m.hv_first, m.hv_nb, m.hv_start, L,
     )  # fmt: skip
     rest = np.empty((u, a.shape[0]))
     r = 0
@@ -152,12 +125,7 @@ def _decided_motion(
 
 
 @numba.njit(cache=True, nogil=True)
-def _sphere_motion(
-    a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, F, prismatic, joints,
-    parents, tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
-    env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a,
-    pair_b,
-):  # fmt: skip
+def _sphere_motion(a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, L):
     """(verdict, unsure, steps, Q): BoundMotion's answer and the motion's configurations Q (steps + 1, dof)."""
     travel = 0.0
     for j in range(a.shape[0]):
@@ -184,12 +152,7 @@ def _sphere_motion(
     J = steps if travel <= 0.0 else min(steps, np.int64(np.floor(ahead * max(steps, 1) / travel)))
     if ahead > 0.0 and J >= 1:
         anchors = np.minimum(np.arange(J, steps + J + 1, 2 * J + 1), steps)
-        if verdicts(
-            Q, anchors, True, env_pad + ahead, map_pad + ahead, self_pad + ahead, F, prismatic, joints, parents,
-            tab_i, tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf,
-            env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res,
-            pair_a, pair_b, v,
-        ) >= 0:  # fmt: skip
+        if verdicts(Q, anchors, True, env_pad + ahead, map_pad + ahead, self_pad + ahead, L, v) >= 0:
             return -1, np.empty(0, np.int64), steps, Q  # an inner ball's contact: no padding takes part in it
         for k in anchors:
             if v[k] == 1:
@@ -202,11 +165,7 @@ def _sphere_motion(
             if (k % STRIDE == 0) == (phase == 0):
                 seq[m] = k
                 m += 1
-    if verdicts(
-        Q, seq[~(known[seq] | ends[seq])], True, env_pad, map_pad, self_pad, F, prismatic, joints, parents, tab_i,
-        tab_f, table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind,
-        ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, v,
-    ) >= 0:  # fmt: skip
+    if verdicts(Q, seq[~(known[seq] | ends[seq])], True, env_pad, map_pad, self_pad, L, v) >= 0:
         return -1, np.empty(0, np.int64), steps, Q
     unsure = np.empty(steps + 1, np.int64)
     u = 0
@@ -214,7 +173,9 @@ def _sphere_motion(
         if ends[k]:
             continue
         # the always-close pairs' tables are not spheres: a configuration cleared by an anchor still asks them
-        if (v[k] == 0 and not known[k]) or (known[k] and tab_i.shape[0] and may_collide_row(Q, k, tab_i, tab_f, table)):
+        if (v[k] == 0 and not known[k]) or (
+            known[k] and L.tab_i.shape[0] and may_collide_row(Q, k, L.tab_i, L.tab_f, L.table)
+        ):
             unsure[u] = k
             u += 1
     return 1, unsure[:u], steps, Q

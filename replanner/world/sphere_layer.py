@@ -18,6 +18,7 @@ import numpy as np
 from .collision_scene import CollisionScene
 from .geometry import Box, Cylinder, Sphere, padding_directions
 from .kernels import frames_of, kernel_array, key_bounds, summed_volume
+from .layer_args import LayerArgs, layer_args
 from .occupancy import OccupancyMap
 from .scene import WorldSnapshot
 from .selfcollision import may_collide_row
@@ -76,6 +77,7 @@ class SphereScene:
         self.body = np.array(body, dtype=np.int64)
         self.padding = float(padding)
         self.fk = robot.chain  # for `classify`
+        self._args: tuple | None = None  # (volume, its LayerArgs)
         self.env_pad, self.map_pad, self.self_pad = float(padding), float(map_padding), float(robot.self_body_padding)
         # how far a padding p takes each padded body beyond its shape, per p (geometry.padded)
         self.gf = np.array([_grow_factor(b.raw_shape, grow) for b in scene.bodies])
@@ -143,22 +145,29 @@ class SphereScene:
         one configuration at a time. `parallel`: on every core (large batches, one calling thread at a time)."""
         out = np.zeros(len(Q), dtype=np.int8)
         Q = kernel_array(Q)
-        args = (self.env_pad, self.map_pad, self.self_pad, *self.kernel_args(volume), out)
+        args = (self.env_pad, self.map_pad, self.self_pad, self.kernel_args(volume), out)
         if parallel:
             _classify_parallel(Q, *args)
         else:
             verdicts(Q, np.arange(len(Q)), False, *args)
         return out
 
-    def kernel_args(self, volume: VoxelVolume | None) -> tuple:
-        """`verdicts`' arguments from Fj to pair_b: the chain, the spheres, the obstacles and the map's volume."""
+    def kernel_args(self, volume: VoxelVolume | None) -> LayerArgs:
+        """What `verdicts` and the convex pass read: the chain, the spheres, the obstacles and the map's volume (built
+        once per volume)."""
         vol = volume or VoxelVolume.EMPTY
-        return (
+        last = self._args
+        if last is not None and last[0] is vol:
+            return last[1]
+        args = layer_args(
             *self.fk, self.tab_i, self.tab_f, self.tab, self.local, self.radius, self.first, self.in_local, self.in_rad,
             self.in_first, self.ball_slot, self.ball_c, self.ball_r, self.gf, self.env_mask, self.ob_kind, self.ob_inv,
             self.ob_dim, self.ob_id, self.ob_exact, self.ob_box, self.octree_mask, vol.sat, vol.csat, vol.key_min,
-            vol.inv_res, self.pair_a, self.pair_b,
+            vol.inv_res, self.pair_a, self.pair_b, self.fine_local, self.fine_rad, self.fine_ptr, self.fine_idx,
+            vol.whole,
         )  # fmt: skip
+        self._args = (vol, args)  # one tuple: threads see the old pair or the new one
+        return args
 
 
 class VoxelVolume:
@@ -372,15 +381,18 @@ def _place(frames, n, slot, P, first, last, out):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def verdicts(
-    Q, order, stop, env_pad, map_pad, self_pad, Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first,
-    in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact,
-    ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, out,
-):  # fmt: skip
+def verdicts(Q, order, stop, env_pad, map_pad, self_pad, L, out):
     """out[n] for each n of `order` in turn: the verdict on configuration Q[n], forward kinematics included (1 free
-    for certain, -1 in contact for certain, 0 unsure). `stop`: return at the first contact, its index in `order`;
-    else (or none) -1. One loop with everything inlined: a call per configuration with these arrays would cost more
-    in reference counting than the configuration's own checks."""
+    for certain, -1 in contact for certain, 0 unsure), L the layer's `LayerArgs`. `stop`: return at the first
+    contact, its index in `order`; else (or none) -1. One loop with everything inlined: a call per configuration
+    with these arrays would cost more in reference counting than the configuration's own checks."""
+    Fj, prismatic, joints, parents = L.Fj, L.prismatic, L.joints, L.parents
+    tab_i, tab_f, table = L.tab_i, L.tab_f, L.table
+    local, rad, first, in_local, in_rad, in_first = L.local, L.rad, L.first, L.in_local, L.in_rad, L.in_first
+    ball_slot, ball_c, ball_r, gf, env_mask = L.ball_slot, L.ball_c, L.ball_r, L.gf, L.env_mask
+    ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box = L.ob_kind, L.ob_inv, L.ob_dim, L.ob_id, L.ob_exact, L.ob_box
+    octree_mask, sat, csat, key_min, inv_res = L.octree_mask, L.sat, L.csat, L.key_min, L.inv_res
+    pair_a, pair_b = L.pair_a, L.pair_b
     B, O, dof = ball_slot.shape[0], ob_kind.shape[0], Q.shape[1]
     frames = np.empty((1, dof + 1, 4, 4))  # one configuration's frames: they stay in cache
     C, IC = np.empty((local.shape[0], 3)), np.empty((in_local.shape[0], 3))
@@ -479,16 +491,8 @@ def verdicts(
 
 
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _classify_parallel(
-    Q, env_pad, map_pad, self_pad, Fj, prismatic, joints, parents, tab_i, tab_f, table, local, rad, first, in_local,
-    in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind, ob_inv, ob_dim, ob_id, ob_exact, ob_box,
-    octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, out,
-):  # fmt: skip
+def _classify_parallel(Q, env_pad, map_pad, self_pad, L, out):
     N, chunk = Q.shape[0], 256
     for c in numba.prange((N + chunk - 1) // chunk):
         lo, hi = c * chunk, min(N, (c + 1) * chunk)
-        verdicts(
-            Q, np.arange(lo, hi), False, env_pad, map_pad, self_pad, Fj, prismatic, joints, parents, tab_i, tab_f,
-            table, local, rad, first, in_local, in_rad, in_first, ball_slot, ball_c, ball_r, gf, env_mask, ob_kind,
-            ob_inv, ob_dim, ob_id, ob_exact, ob_box, octree_mask, sat, csat, key_min, inv_res, pair_a, pair_b, out,
-        )  # fmt: skip
+        verdicts(Q, np.arange(lo, hi), False, env_pad, map_pad, self_pad, L, out)
