@@ -458,6 +458,9 @@ def test_the_planning_bench_plans_beside_a_person_on_a_fresh_map_each_time(panda
     o = out["overall"]
     assert o["with_person"] == 4 and o["success_rate"] == 1.0, o.get("failures")
     assert o["map_voxels"]["median"] > 10_000 and o["map_colliding_samples"] == 0 and o["colliding_samples"] == 0
+    # a plan's time split into its search and its shortcutting (FCL's re-check of the path included)
+    assert o["search_ms"]["n"] == o["simplify_ms"]["n"] == 4
+    assert max(o["search_ms"]["median"], o["simplify_ms"]["median"]) <= o["plan_ms"]["median"]  # parts of each plan
 
 
 def test_after_an_edit_of_the_world_a_straight_plan_builds_no_layer(panda, panda_cfg):

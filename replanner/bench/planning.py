@@ -296,6 +296,8 @@ def run(
             row.update(
                 success=True,
                 plan_ms=res.total_time * 1e3,
+                search_ms=res.search_time * 1e3,
+                simplify_ms=res.simplify_time * 1e3,
                 waypoints=len(res.path),
                 direct=res.direct,
                 attempts=res.attempts,
@@ -342,6 +344,9 @@ def summarize(rows: list[dict], robot: str, seed: int, deadline: float, cfg) -> 
             "problems": len(sel),
             "success_rate": len(ok) / max(len(sel), 1),
             "plan_ms": summary([r["plan_ms"] for r in ok]),
+            # where the plans' time went: the search, and the shortcutting with FCL's re-check of the path
+            "search_ms": summary([r["search_ms"] for r in ok]),
+            "simplify_ms": summary([r["simplify_ms"] for r in ok]),
             "timing_ms": summary([r["timing_ms"] for r in ok]),
             "duration_s": summary([r["duration_s"] for r in ok]),
             "naive_duration_s": summary([r["naive_duration_s"] for r in ok]),
