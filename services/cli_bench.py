@@ -139,19 +139,9 @@ def bench_perception(
 def _print_planning(r: dict) -> None:
     t = Table(title=f"planning: {r['robot']}, {r['planner']}, deadline {r['deadline_s']} s, seed {r['seed']}")
     for col in (
-        "family",
-        "n",
-        "success",
-        "plan ms med / p95",
-        "search / simplify ms med",
-        "timing ms med / p95",
-        "duration s med",
-        "naive s med",
-        "naive/timed",
-        "worst v / a / j",
-        "tube max",
-        "collisions",
-    ):
+        "family", "n", "success", "plan ms med / p95", "search / simplify ms med", "timing ms med / p95",
+        "duration s med", "naive s med", "naive/timed", "worst v / a / j", "tube max", "collisions",
+    ):  # fmt: skip
         t.add_column(col)
     for name, d in [*r["families"].items(), ("overall", r["overall"])]:
         w = d.get("worst", {})
