@@ -9,6 +9,7 @@ import pytest
 from replanner.bench.scenes import add_table, clutter_map
 from replanner.world.broadphase import hull_apart
 from replanner.world.collision import OCTREE, CollisionChecker
+from replanner.world.collision_scene import CollisionScene
 from replanner.world.geometry import Box, Cylinder, Sphere, padded_geometry, padded_vertices, to_fcl
 from replanner.world.hull_graph import edge_graph
 from replanner.world.kernels import boxes_apart
@@ -304,7 +305,7 @@ def test_the_hull_cull_never_parts_a_link_from_a_box_fcl_finds_touching(panda):
                           fcl.CollisionRequest()) > 0  # fmt: skip
         first, nb, start = edge_graph([V])
         hint = np.full((1, 6), start[0])
-        apart = hull_apart(T, 0, 0, V, Ro[None], np.zeros((1, 3)), half[None], 0, first, nb, hint)
+        apart = hull_apart(T, 0, 0, V, Ro, np.zeros(3), half, first, nb, hint)
         assert not (hit and apart), i
         touching += hit
         centre = T[0, 0, :3, :3] @ c + T[0, 0, :3, 3]
@@ -313,6 +314,42 @@ def test_the_hull_cull_never_parts_a_link_from_a_box_fcl_finds_touching(panda):
             parted += apart
     assert touching > 0.2 * n and boxes_meet_only > 0.05 * n
     assert parted > 0.3 * boxes_meet_only  # the hull is tighter than its box
+
+
+@pytest.mark.parametrize("robot", ["panda", "iiwa"])
+def test_the_hull_cull_never_parts_two_links_fcl_finds_touching(robot, request):
+    """The self pairs' last test before FCL (each body's padded hull, the one FCL is given, on the other body's box
+    axes) against FCL's own verdict on the two hulls, at configurations near the robot's home and anywhere: it never
+    parts a pair FCL finds touching, and it parts most pairs whose oriented boxes meet but FCL finds apart."""
+    model = request.getfixturevalue(robot)
+    scene = CollisionScene(model, World(model).snapshot(), padding=0.0, map_padding=0.0, allowed_contacts=frozenset())
+    rng = np.random.default_rng(17)
+    near_home = np.clip(model.home + rng.normal(0.0, 0.6, (1500, model.dof)), model.limits.lower, model.limits.upper)
+    Q = np.concatenate([near_home, model.random_q(rng, 3000)])
+    T = scene.body_poses(model.frames(Q))
+    graph = (scene.own_edges, scene.own_nb)
+    hint = np.repeat(scene.own_start[:, None], 6, axis=1)
+    scratch = (np.empty((3, 3)), np.empty((3, 3)), np.empty(3))
+    touching = boxes_meet_only = parted = 0
+    for n in range(len(Q)):
+        for a, b in zip(scene.box_a, scene.box_b):
+            wa = T[n, a, :3, :3] @ scene.box_c[1, a] + T[n, a, :3, 3]
+            wb = T[n, b, :3, :3] @ scene.box_c[1, b] + T[n, b, :3, 3]
+            if boxes_apart(T[n, a], wa, scene.box_h[1, a], T[n, b, :3, :3].copy(), wb, scene.box_h[1, b], *scratch):
+                continue
+            Ta, Tb = T[n : n + 1].copy(), T[n : n + 1].copy()
+            apart = hull_apart(Ta, 0, b, scene.own_v, T[n, a, :3, :3].copy(), wa, scene.box_h[1, a], *graph, hint)
+            apart = apart or hull_apart(Tb, 0, a, scene.own_v, T[n, b, :3, :3].copy(), wb, scene.box_h[1, b], *graph,
+                                        hint)  # fmt: skip
+            ga, gb = (fcl.CollisionObject(scene.bodies[k].self_, fcl.Transform(T[n, k, :3, :3], T[n, k, :3, 3]))
+                      for k in (a, b))  # fmt: skip
+            hit = fcl.collide(ga, gb, fcl.CollisionRequest()) > 0
+            assert not (hit and apart), (n, scene.names[a], scene.names[b])
+            touching += hit
+            boxes_meet_only += not hit
+            parted += apart and not hit
+    assert touching > 0 and boxes_meet_only > 100
+    assert parted > 0.5 * boxes_meet_only  # the hulls are tighter than their boxes
 
 
 def test_oriented_pair_test_never_separates_body_boxes_fcl_finds_touching():

@@ -16,25 +16,22 @@ GAP = 1e-9  # [m] a hull parted from a box by less is left to FCL
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def hull_apart(T, n, b, V, obs_R, obs_c, obs_h, o, first, nb, hint) -> bool:
-    """Whether one of obstacle o's box axes parts it from body b's hull (vertices V in its frame, edges first, nb:
-    hull_graph.edge_graph, at pose T[n, b]): the hull's support along the axis, exact, against the box's half extent,
-    climbed from hint[b] (6: the last lows and highs per axis, hull vertices; left at the answers)."""
+def hull_apart(T, n, b, V, R, c, h, first, nb, hint) -> bool:
+    """Whether one of a box's axes (rotation R: its axes as columns, centre c, half extents h, world) parts it from
+    body b's hull (vertices V in its frame, edges first, nb: hull_graph.edge_graph, at pose T[n, b]): the hull's
+    support along the axis, exact, against the box's half extent, climbed from hint[b] (6: the last lows and highs
+    per axis, hull vertices; left at the answers)."""
     for k in range(3):
         # the axis in the body's frame, and the body origin's offset from the box centre along it
-        u0 = T[n, b, 0, 0] * obs_R[o, 0, k] + T[n, b, 1, 0] * obs_R[o, 1, k] + T[n, b, 2, 0] * obs_R[o, 2, k]
-        u1 = T[n, b, 0, 1] * obs_R[o, 0, k] + T[n, b, 1, 1] * obs_R[o, 1, k] + T[n, b, 2, 1] * obs_R[o, 2, k]
-        u2 = T[n, b, 0, 2] * obs_R[o, 0, k] + T[n, b, 1, 2] * obs_R[o, 1, k] + T[n, b, 2, 2] * obs_R[o, 2, k]
-        base = (
-            (T[n, b, 0, 3] - obs_c[o, 0]) * obs_R[o, 0, k]
-            + (T[n, b, 1, 3] - obs_c[o, 1]) * obs_R[o, 1, k]
-            + (T[n, b, 2, 3] - obs_c[o, 2]) * obs_R[o, 2, k]
-        )
+        u0 = T[n, b, 0, 0] * R[0, k] + T[n, b, 1, 0] * R[1, k] + T[n, b, 2, 0] * R[2, k]
+        u1 = T[n, b, 0, 1] * R[0, k] + T[n, b, 1, 1] * R[1, k] + T[n, b, 2, 1] * R[2, k]
+        u2 = T[n, b, 0, 2] * R[0, k] + T[n, b, 1, 2] * R[1, k] + T[n, b, 2, 2] * R[2, k]
+        base = (T[n, b, 0, 3] - c[0]) * R[0, k] + (T[n, b, 1, 3] - c[1]) * R[1, k] + (T[n, b, 2, 3] - c[2]) * R[2, k]
         hint[b, 2 * k], low = climb(V, first, nb, hint[b, 2 * k], -u0, -u1, -u2)
-        if base - low > obs_h[o, k] + GAP:
+        if base - low > h[k] + GAP:
             return True
         hint[b, 2 * k + 1], high = climb(V, first, nb, hint[b, 2 * k + 1], u0, u1, u2)
-        if base + high < -obs_h[o, k] - GAP:
+        if base + high < -h[k] - GAP:
             return True
     return False
 
@@ -53,7 +50,7 @@ def _push(tests, m, n, kind, a, b):
 def broadphase(
     Q, F, prismatic, joints, parents, slot, off, box_c, box_h, octree_mask, origin, inv_cell, ncell, sat, objects,
     env_mask, obs_lo, obs_hi, obs_R, obs_c, obs_h, hull_v, hull_first, hull_edges, hull_nb, hull_start, pair_a, pair_b,
-    pair_tab, k0, tab_i, tab_f, table, T, tests,
+    pair_tab, k0, tab_i, tab_f, table, own_v, own_first, own_edges, own_nb, own_start, T, tests,
 ):  # fmt: skip
     """T[n] = the body poses (B, 4, 4) of configuration Q[n] (body b: frame slot[b] times off[b]); returns `tests`
     (grown when full) and the count of its rows (n, kind, a, b) filled, the pairs whose boxes meet, per
@@ -75,8 +72,10 @@ def broadphase(
     t, wa, wb = np.empty(3), np.empty(3), np.empty(3)
     with_map = sat.shape[0] > 1
     hint = np.empty((B, 6), np.int64)  # each hull's last support points: the next configuration's starts
+    own_hint = np.empty((B, 6), np.int64)  # the same of the hulls against the robot's own bodies
     for b in range(B):
         hint[b, :] = hull_start[b]
+        own_hint[b, :] = own_start[b]
     m = 0
     for n in range(N):
         frames_of(Q, n, F, prismatic, joints, parents, frames, 0)
@@ -108,7 +107,7 @@ def broadphase(
                     if boxes_apart(T[n, b], wa, box_h[0, b], obs_R[o], obs_c[o], obs_h[o], R, A, t):
                         continue
                     if hull_first[b + 1] > hull_first[b] and hull_apart(
-                        T, n, b, hull_v, obs_R, obs_c, obs_h, o, hull_edges, hull_nb, hint
+                        T, n, b, hull_v, obs_R[o], obs_c[o], obs_h[o], hull_edges, hull_nb, hint
                     ):
                         continue
                     tests, m = _push(tests, m, n, OBJECT, b, o)
@@ -126,6 +125,16 @@ def broadphase(
                 continue
             box_centre(T[n, a], box_c[1, a], wa)
             box_centre(T[n, b], box_c[1, b], wb)
-            if not boxes_apart(T[n, a], wa, box_h[1, a], T[n, b, :3, :3], wb, box_h[1, b], R, A, t):
-                tests, m = _push(tests, m, n, SELF, a, b)
+            if boxes_apart(T[n, a], wa, box_h[1, a], T[n, b, :3, :3], wb, box_h[1, b], R, A, t):
+                continue
+            # each hull against the other's box: a link's box is loose where its neighbour's comes close
+            if own_first[b + 1] > own_first[b] and hull_apart(
+                T, n, b, own_v, T[n, a, :3, :3], wa, box_h[1, a], own_edges, own_nb, own_hint
+            ):
+                continue
+            if own_first[a + 1] > own_first[a] and hull_apart(
+                T, n, a, own_v, T[n, b, :3, :3], wb, box_h[1, b], own_edges, own_nb, own_hint
+            ):
+                continue
+            tests, m = _push(tests, m, n, SELF, a, b)
     return tests, m

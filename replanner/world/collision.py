@@ -322,6 +322,7 @@ class CollisionChecker:
             not octree_only, scene.env_mask, scene.obs_lo, scene.obs_hi, scene.obs_R, scene.obs_c, scene.obs_h,
             scene.hull_v, scene.hull_first, scene.hull_edges, scene.hull_nb, scene.hull_start, scene.pair_a,
             scene.pair_b, scene.pair_tab, k0, scene.tables.packed_i, scene.tables.packed_f, scene.tables.lookup,
+            scene.own_v, scene.own_first, scene.own_edges, scene.own_nb, scene.own_start,
         )  # fmt: skip
 
         def tests_of(a: int, b: int):  # rows a:b (the broadphase releases the GIL)

@@ -132,6 +132,11 @@ class CollisionScene:
         self.hull_v = np.ascontiguousarray(np.concatenate(hulls), dtype=np.float64)
         self.hull_first = np.concatenate([[0], np.cumsum([len(v) for v in hulls])]).astype(np.int64)
         self.hull_edges, self.hull_nb, self.hull_start = edge_graph(hulls)  # their supports climb the edges
+        # the hulls FCL is given against the robot's own bodies, likewise: on the other body's box axes
+        own = [padded_vertices(b.raw_shape, robot.self_body_padding) for b in bodies]
+        self.own_v = np.ascontiguousarray(np.concatenate(own), dtype=np.float64)
+        self.own_first = np.concatenate([[0], np.cumsum([len(v) for v in own])]).astype(np.int64)
+        self.own_edges, self.own_nb, self.own_start = edge_graph(own)
         # bounding balls of the unpadded bodies: centre (B, 4, 1) homogeneous in the body frame, radius (B,)
         self.ball_c = np.stack([np.append(b.raw_box[0], 1.0) for b in bodies])[..., None]
         self.ball_r = np.array([ball_radius(b.raw_shape, b.raw_box[0]) for b in bodies])
