@@ -6,8 +6,12 @@ config, the errors and the world (robot model, scene, collision checker). The li
 services (the `replanner` command) read config files and open sessions.
 """
 
-from .config import ReplannerConfig, load_config, parse_config
-from .errors import (
+from .cache_dirs import use_kernel_cache
+
+use_kernel_cache()  # before any kernel is defined: numba reads its cache directory then
+
+from .config import ReplannerConfig, load_config, parse_config  # noqa: E402
+from .errors import (  # noqa: E402
     ConfigError,
     InvalidInputError,
     ReplannerError,
@@ -16,12 +20,12 @@ from .errors import (
     UnknownNameError,
     WorldError,
 )
-from .world.collision import Clearance, CollisionChecker, Contact, ContactKind, PathCheck
-from .world.geometry import Box, Cylinder, Mesh, Sphere
-from .world.occupancy import OccupancyMap
-from .world.robot import JointLimits, RobotModel
-from .world.scene import World
-from .world.transforms import make_transform
+from .world.collision import Clearance, CollisionChecker, Contact, ContactKind, PathCheck  # noqa: E402
+from .world.geometry import Box, Cylinder, Mesh, Sphere  # noqa: E402
+from .world.occupancy import OccupancyMap  # noqa: E402
+from .world.robot import JointLimits, RobotModel  # noqa: E402
+from .world.scene import World  # noqa: E402
+from .world.transforms import make_transform  # noqa: E402
 
 __version__ = "0.1.0"
 

@@ -1,6 +1,6 @@
 """Compiled loops of the perception pipeline (numba): one pass over a frame's points where numpy would make five.
 
-Compiled once per machine and cached (numba's cache: next to this file, or in $NUMBA_CACHE_DIR).
+Compiled once per machine and cached (numba's cache, per version of the compiled sources: see cache_dirs.py).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Compiled loops of the timing hot path (numba): derivative bounds of quintics and path speed bounds, which a splice
 computes for dozens of candidate transitions at once, where numpy spends its time on temporaries and call overhead.
 
-Compiled once per machine and cached (numba's cache: next to this file, or in $NUMBA_CACHE_DIR).
+Compiled once per machine and cached (numba's cache, per version of the compiled sources: see cache_dirs.py).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Compiled loops of the collision hot path (numba): forward kinematics, body poses and boxes, and the map's
 broadphase for every configuration of a path at once, where numpy's batched 4x4 products are mostly overhead.
 
-Compiled once per machine and cached (numba's cache: next to this file, or in $NUMBA_CACHE_DIR).
+Compiled once per machine and cached (numba's cache, per version of the compiled sources: see cache_dirs.py).
 """
 
 from __future__ import annotations

@@ -17,10 +17,11 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..cache_dirs import default_cache_dir
 from ..errors import InvalidInputError, RobotModelError, UnknownNameError
 from ..sections import RobotConfig
 from .kernels import chain_frames, warm_up
-from .selfcollision import SelfClearanceTables, default_cache_dir
+from .selfcollision import SelfClearanceTables
 from .urdf import CollisionBody, collision_bodies, load_urdf
 
 log = logging.getLogger(__name__)

@@ -31,13 +31,6 @@ MAX_POINTS = 256
 BLOCK = 8  # grid points a side of a coarse cell: the cells' least clearances stay in cache and answer most lookups
 
 
-def default_cache_dir() -> Path:
-    root = os.environ.get("REPLANNER_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "replanner"
-    )
-    return Path(root)
-
-
 class SelfClearanceTables:
     """Clearance tables for a subset of a robot's self-collision pairs.
 
