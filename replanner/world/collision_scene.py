@@ -69,6 +69,14 @@ class SceneBody:
         )
 
 
+def hull_set(bodies, padding: float) -> tuple[np.ndarray, ...]:
+    """The padded hulls of `bodies` (body frames) stacked: vertices (V, 3), each body's first vertex (B + 1,), and
+    their edges (hull_graph.edge_graph: first, nb, start) for climbing to supports; a primitive has none."""
+    hulls = [padded_vertices(b.raw_shape, padding) for b in bodies]
+    first = np.concatenate([[0], np.cumsum([len(v) for v in hulls])]).astype(np.int64)
+    return (np.ascontiguousarray(np.concatenate(hulls), dtype=np.float64), first, *edge_graph(hulls))
+
+
 def ball_radius(shape: Shape, center: np.ndarray) -> float:
     """Radius of a ball around `center` (shape frame) that contains the shape."""
     if hasattr(shape, "vertices"):
@@ -128,15 +136,11 @@ class CollisionScene:
         h = np.stack([np.stack([getattr(b, k)[1] for b in bodies]) for k in ("env_box", "self_box", "map_box")])
         self.box_c, self.box_h = np.ascontiguousarray(c, dtype=np.float64), np.ascontiguousarray(h, dtype=np.float64)
         # the hulls FCL is given against static objects (body frames): their support on an object's box axes
-        hulls = [padded_vertices(b.raw_shape, padding) for b in bodies]
-        self.hull_v = np.ascontiguousarray(np.concatenate(hulls), dtype=np.float64)
-        self.hull_first = np.concatenate([[0], np.cumsum([len(v) for v in hulls])]).astype(np.int64)
-        self.hull_edges, self.hull_nb, self.hull_start = edge_graph(hulls)  # their supports climb the edges
-        # the hulls FCL is given against the robot's own bodies, likewise: on the other body's box axes
-        own = [padded_vertices(b.raw_shape, robot.self_body_padding) for b in bodies]
-        self.own_v = np.ascontiguousarray(np.concatenate(own), dtype=np.float64)
-        self.own_first = np.concatenate([[0], np.cumsum([len(v) for v in own])]).astype(np.int64)
-        self.own_edges, self.own_nb, self.own_start = edge_graph(own)
+        self.hull_v, self.hull_first, self.hull_edges, self.hull_nb, self.hull_start = hull_set(bodies, padding)
+        # and against the robot's own bodies: their support on the other body's box axes
+        self.own_v, self.own_first, self.own_edges, self.own_nb, self.own_start = hull_set(
+            bodies, robot.self_body_padding
+        )
         # bounding balls of the unpadded bodies: centre (B, 4, 1) homogeneous in the body frame, radius (B,)
         self.ball_c = np.stack([np.append(b.raw_box[0], 1.0) for b in bodies])[..., None]
         self.ball_r = np.array([ball_radius(b.raw_shape, b.raw_box[0]) for b in bodies])
