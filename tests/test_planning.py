@@ -444,6 +444,53 @@ def test_every_segment_of_a_shortcut_path_was_checked_as_itself(planner, wall_wo
         assert all((a.tobytes(), b.tobytes()) in ok for a, b in zip(W[:-1], W[1:])), seed
 
 
+def test_without_piece_checks_every_segment_lies_on_a_motion_found_free(planner, wall_world):
+    """Where a finer check of the result decides (the planner's coarse shortcutting), the kept pieces of cut segments
+    are not asked about again: each segment of the result then lies on a straight motion that was checked and found
+    free, and the planner still returns only what FCL clears at the full resolution."""
+    checker = wall_world[1]
+    path = planner.plan(A, B, deadline=5.0).path
+    t = np.linspace(0.0, 1.0, 5)[:-1, None]
+    raw = np.vstack([a + t * (b - a) for a, b in zip(path[:-1], path[1:])] + [path[-1:]])
+    free = [(a, b) for a, b in zip(raw[:-1], raw[1:])]  # the search checked the found path's own segments
+    cut = 0
+    for seed in range(5):
+        asked = []
+
+        def motion_ok(a, b, asked=asked):
+            ok = checker.path_valid(np.array([a, b]), 0.05)
+            asked.append(ok)
+            if ok:
+                free.append((a.copy(), b.copy()))
+            return ok
+
+        W = shortcut(raw, motion_ok, np.random.default_rng(seed), tries=10, pieces=False)
+        with_pieces = []
+
+        def counted(a, b, with_pieces=with_pieces):
+            with_pieces.append(1)
+            return checker.path_valid(np.array([a, b]), 0.05)
+
+        shortcut(raw, counted, np.random.default_rng(seed), tries=10)
+        cut += len(with_pieces) - len(asked)
+
+        def on_free_motion(p, q):
+            for a, b in free:
+                d = b - a
+                s = np.array([np.dot(x - a, d) / np.dot(d, d) for x in (p, q)])
+                if np.all((s > -1e-9) & (s < 1 + 1e-9)) and all(
+                    np.allclose(a + si * d, x, atol=1e-9) for si, x in zip(s, (p, q))
+                ):
+                    return True
+            return False
+
+        assert len(W) < len(raw)
+        assert all(on_free_motion(a, b) for a, b in zip(W[:-1], W[1:])), seed
+    assert cut > 0  # the pieces' own checks were the motions saved
+    res = planner.plan(A, B, deadline=5.0)
+    assert planner.exact.check_path(res.path).valid
+
+
 def test_the_planning_bench_plans_beside_a_person_on_a_fresh_map_each_time(panda_cfg):
     """`bench planning --person`: a person-sized column of voxels beside each problem, clear of its start and goal;
     the plans avoid it (FCL on the timed trajectory, unpadded) and its voxels are counted."""

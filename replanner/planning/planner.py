@@ -486,7 +486,8 @@ class Planner:
         """Fewer, shorter segments (planning/shortcut.py): up to `shortcut_tries` random shortcuts between waypoint
         skips, each checked every `resolution` [m] (None: the checker's path resolution).
 
-        Bounded by counts; `t_end` (a time of `clock`, the plan's deadline) may only cut it short.
+        Bounded by counts; `t_end` (a time of `clock`, the plan's deadline) may only cut it short. A coarser
+        `resolution` leaves the kept pieces of cut segments unchecked: `simplify` checks the result finer.
         """
         return shortcut(
             W,
@@ -495,4 +496,5 @@ class Planner:
             tries=self.shortcut_tries,
             t_end=t_end,
             clock=self.clock,
+            pieces=resolution is None,
         )
