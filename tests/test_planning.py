@@ -453,6 +453,17 @@ def test_without_piece_checks_every_segment_lies_on_a_motion_found_free(planner,
     t = np.linspace(0.0, 1.0, 5)[:-1, None]
     raw = np.vstack([a + t * (b - a) for a, b in zip(path[:-1], path[1:])] + [path[-1:]])
     free = [(a, b) for a, b in zip(raw[:-1], raw[1:])]  # the search checked the found path's own segments
+
+    def on_free_motion(p, q):
+        for a, b in free:
+            d = b - a
+            s = np.array([np.dot(x - a, d) / np.dot(d, d) for x in (p, q)])
+            if np.all((s > -1e-9) & (s < 1 + 1e-9)) and all(
+                np.allclose(a + si * d, x, atol=1e-9) for si, x in zip(s, (p, q))
+            ):
+                return True
+        return False
+
     cut = 0
     for seed in range(5):
         asked = []
@@ -473,16 +484,6 @@ def test_without_piece_checks_every_segment_lies_on_a_motion_found_free(planner,
 
         shortcut(raw, counted, np.random.default_rng(seed), tries=10)
         cut += len(with_pieces) - len(asked)
-
-        def on_free_motion(p, q):
-            for a, b in free:
-                d = b - a
-                s = np.array([np.dot(x - a, d) / np.dot(d, d) for x in (p, q)])
-                if np.all((s > -1e-9) & (s < 1 + 1e-9)) and all(
-                    np.allclose(a + si * d, x, atol=1e-9) for si, x in zip(s, (p, q))
-                ):
-                    return True
-            return False
 
         assert len(W) < len(raw)
         assert all(on_free_motion(a, b) for a, b in zip(W[:-1], W[1:])), seed

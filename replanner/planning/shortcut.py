@@ -29,7 +29,7 @@ def shortcut(
     it is once passed (valid, only longer). `remember`: ask about each straight motion once (the second skip asks
     again of the waypoints the first one kept); the path is the same either way. `pieces`: the pieces a shortcut
     keeps of the two segments it cuts are checked as segments of their own; False only where a finer check of the
-    result decides (they lie on segments already checked at this resolution: 98 of 100 bench paths the same)."""
+    result decides (they lie on segments already checked at this resolution)."""
     known: dict[tuple[bytes, bytes], bool] = {}
 
     def reachable(a: np.ndarray, b: np.ndarray) -> bool:
@@ -54,8 +54,8 @@ def shortcut(
             continue
         pa = W[ia] + (a - acc[ia]) / seg[ia] * (W[ia + 1] - W[ia])
         pb = W[ib] + (b - acc[ib]) / seg[ib] * (W[ib + 1] - W[ib])
-        # the pieces kept of the cut segments are checked as segments of their own: checked at other configurations
-        # than the whole, a line that passes within the padding between two of them may touch it at one of these
+        # with `pieces`, the kept pieces of the cut segments are checked as segments of their own: at other
+        # configurations than the whole, a line within the padding between two of them may touch it at one of these
         if motion_ok(pa, pb) and (not pieces or (reachable(W[ia], pa) and reachable(pb, W[ib + 1]))):
             W = np.vstack([W[: ia + 1], pa, pb, W[ib + 1 :]])
             misses = 0
