@@ -12,6 +12,7 @@ from replanner.errors import InvalidInputError
 from replanner.planning import GoalInvalid, NoSolution, Planner, PoseGoal, StartInvalid, UnknownPlanner
 from replanner.planning.ik import IKError, solve_ik
 from replanner.planning.shortcut import shortcut
+from replanner.stack import build_stack
 from replanner.world.collision import CollisionChecker
 from replanner.world.geometry import Box
 from replanner.world.scene import World
@@ -349,6 +350,23 @@ def test_the_standard_families_grasp_their_cans_close_and_clear(panda, panda_cfg
             oracle.close()
             assert p.padding == bench.GRASP_PADDING and min(gap.values()) > -HULL_MARGIN, (family, gap)
             assert gap[p.target] < 0.03, (family, p.target, gap[p.target])  # a grasp, not a pose somewhere near it
+
+
+def test_the_planning_bench_builds_problems_for_any_robot_at_its_own_tip(iiwa, iiwa_cfg):
+    """`bench planning --config iiwa`: grasps are posed for the config's tip link; a family whose scenes give this
+    robot no problem stops after a bounded count of scenes with an error that names the way out."""
+    from replanner.bench import planning as bench
+
+    region = (np.array([0.5, 0.0, 0.4]), bench.DOWN, np.pi)
+    rng = np.random.default_rng(3)
+    checker = build_stack(iiwa_cfg, robot=iiwa, static=[], cameras=False).checker
+    goal = bench._ik_goal(iiwa, checker, rng, region, iiwa.home, iiwa_cfg.robot.tip_link)
+    tip = iiwa.link_pose(goal, iiwa_cfg.robot.tip_link)[:3, 3]
+    assert np.all(np.abs(tip - region[0]) <= 0.03 + iiwa_cfg.planning.position_tolerance), tip
+    assert len(bench.make_problems(iiwa, iiwa_cfg, "bin", 2, seed=5)) == 2
+    # no bookshelf grasp of the Panda's fits the iiwa: it gives up after 50 scenes, not its budget's 20,000
+    with pytest.raises(InvalidInputError, match=r"only 0 of 100 bookshelf_small problems in 50 scenes.*--families"):
+        bench.make_problems(iiwa, iiwa_cfg, "bookshelf_small", 100, seed=5)
 
 
 def test_the_sphere_layer_changes_no_verdict_so_a_seeded_plan_is_the_same_path(wall_world, panda_cfg):

@@ -28,7 +28,6 @@ from .scenes import PERSON, TABLE_SIZE, person_map
 
 OURS = ("table", "shelf", "bin", "cage")
 FAMILIES = OURS + STANDARD
-TIP = "panda_grasptarget"
 DOWN = (1.0, 0.0, 0.0, 0.0)  # tool z pointing down
 FORWARD = (0.0, 0.7071068, 0.0, 0.7071068)  # tool z pointing along +x
 
@@ -133,53 +132,68 @@ def _family_objects(family: str, rng: np.random.Generator):
     raise ValueError(f"unknown family {family!r}; families: {', '.join(FAMILIES)}")
 
 
-def _random_valid(robot, checker, rng, tries: int = 2000):
+def _random_valid(robot, checker, rng, tip_link: str, tries: int = 2000):
     for _ in range(tries):
         q = robot.random_q(rng)
-        tip = robot.link_pose(q, TIP)[:3, 3]
+        tip = robot.link_pose(q, tip_link)[:3, 3]
         if tip[2] > 0.05 and checker.is_valid(q):
             return q
     raise RuntimeError("no valid random configuration")
 
 
-def _ik_goal(robot, checker, rng, region, start):
+def _ik_goal(robot, checker, rng, region, start, tip_link: str):
     center, quat, spread = region
     for _ in range(30):
         T = make_transform(center + rng.uniform(-0.03, 0.03, 3), _yaw(quat, rng.uniform(-spread, spread) / 2))
         try:
-            return solve_ik(robot, TIP, T, checker=checker, seed=start, restarts=24, rng=rng).q
+            return solve_ik(robot, tip_link, T, checker=checker, seed=start, restarts=24, rng=rng).q
         except IKError:
             continue
     return None
 
 
-def make_problems(robot: RobotModel, cfg: ReplannerConfig, family: str, n: int, seed: int) -> list[Problem]:
-    """`n` problems of a family; each has its own seeded scene, and a valid start and goal."""
+def make_problems(
+    robot: RobotModel, cfg: ReplannerConfig, family: str, n: int, seed: int, max_scenes: int | None = None
+) -> list[Problem]:
+    """`n` problems of a family; each has its own seeded scene, and a valid start and goal.
+
+    Raises InvalidInputError when `max_scenes` scenes (default 200 per problem; 50 if none gives one) give fewer:
+    a robot whose reach or tip link fits the family's scenes badly."""
     rng = np.random.default_rng([seed, FAMILIES.index(family)])
-    problems = []
-    while len(problems) < n and family in STANDARD:
-        problem = _standard_problem(robot, cfg, family, len(problems), rng)
-        if problem is not None:
-            problems.append(problem)
-    while len(problems) < n:
+    tip = cfg.robot.tip_link
+    budget = 200 * n if max_scenes is None else max_scenes
+    problems, scenes = [], 0
+    while len(problems) < n and scenes < budget and (problems or scenes < 50):  # none in 50: the rest fail as slowly
+        scenes += 1
+        if family in STANDARD:
+            problem = _standard_problem(robot, cfg, family, len(problems), rng)
+            if problem is not None:
+                problems.append(problem)
+            continue
         objects, regions = _family_objects(family, rng)
         checker = build_stack(cfg, robot=robot, static=objects, cameras=False).checker
         if regions is None:  # the table: random pairs whose straight line is blocked (a real planning problem)
-            start, goal = _random_valid(robot, checker, rng), _random_valid(robot, checker, rng)
+            start, goal = _random_valid(robot, checker, rng, tip), _random_valid(robot, checker, rng, tip)
             if checker.path_valid(np.array([start, goal])):
                 continue
         else:
             if family == "shelf":  # from one compartment to another
                 a, b = rng.choice(len(regions), 2, replace=False)
-                start = _ik_goal(robot, checker, rng, regions[a], robot.home)
-                goal = _ik_goal(robot, checker, rng, regions[b], robot.home)
+                start = _ik_goal(robot, checker, rng, regions[a], robot.home, tip)
+                goal = _ik_goal(robot, checker, rng, regions[b], robot.home, tip)
             else:
-                start = _random_valid(robot, checker, rng)
-                goal = _ik_goal(robot, checker, rng, regions[int(rng.integers(len(regions)))], start)
+                start = _random_valid(robot, checker, rng, tip)
+                goal = _ik_goal(robot, checker, rng, regions[int(rng.integers(len(regions)))], start, tip)
             if start is None or goal is None:
                 continue
         problems.append(Problem(family, len(problems), objects, start, goal))
-    return problems
+    if len(problems) == n:
+        return problems
+    raise InvalidInputError(
+        f"{robot.name}: only {len(problems)} of {n} {family} problems in {scenes} scenes: the family's scenes "
+        f"(sized for the Panda) rarely give this robot and its tip link {tip!r} a valid start and goal; leave "
+        f"{family} out (--families)"
+    )
 
 
 def _standard_problem(robot, cfg, family: str, index: int, rng) -> Problem | None:
@@ -198,7 +212,7 @@ def _standard_problem(robot, cfg, family: str, index: int, rng) -> Problem | Non
     target, poses = targets[int(rng.integers(len(targets)))]
     for k in rng.permutation(len(poses)):
         try:
-            goal = solve_ik(robot, TIP, poses[k], checker=checker, seed=start, restarts=24, rng=rng).q
+            goal = solve_ik(robot, cfg.robot.tip_link, poses[k], checker=checker, seed=start, restarts=24, rng=rng).q
         except IKError:
             continue
         return Problem(family, index, objects, start, goal, GRASP_PADDING, target[0])
