@@ -262,7 +262,7 @@ class PlanningConfig(Section):
         "LBKPIECE1", description="The default planner's retries alternate with this one (null: the same again)."
     )
     shortcut_tries: int = Field(10, ge=0, description="Random shortcuts tried after the search (a count).")
-    range: float | None = Field(1.0, gt=0.0, description="Planner step [rad]; null: OMPL's default (extent / 5).")
+    range: float | None = Field(1.5, gt=0.0, description="Planner step [rad]; null: OMPL's default.")
     search_coarseness: float = Field(
         4.0, ge=1.0, le=10.0, description="The search checks motions this much coarser; its path at full resolution."
     )

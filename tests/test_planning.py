@@ -428,7 +428,7 @@ def test_shortcutting_asks_about_each_straight_motion_once(planner, wall_world):
 
         def motion_ok(a, b, seen=seen):
             seen.append((a.tobytes(), b.tobytes()))
-            return checker.path_valid(np.array([a, b]), 0.05)
+            return checker.path_valid(np.array([a, b]))  # the resolution the path is judged at below
 
         paths.append(shortcut(raw, motion_ok, np.random.default_rng(0), tries=10, remember=remember))
         asked.append(seen)
