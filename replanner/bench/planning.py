@@ -152,16 +152,14 @@ def _ik_goal(robot, checker, rng, region, start, tip_link: str):
     return None
 
 
-def make_problems(
-    robot: RobotModel, cfg: ReplannerConfig, family: str, n: int, seed: int, max_scenes: int | None = None
-) -> list[Problem]:
+def make_problems(robot: RobotModel, cfg: ReplannerConfig, family: str, n: int, seed: int) -> list[Problem]:
     """`n` problems of a family; each has its own seeded scene, and a valid start and goal.
 
-    Raises InvalidInputError when `max_scenes` scenes (default 200 per problem; 50 if none gives one) give fewer:
+    Raises InvalidInputError when 200 scenes per problem (50 if none gives one) give fewer:
     a robot whose reach or tip link fits the family's scenes badly."""
     rng = np.random.default_rng([seed, FAMILIES.index(family)])
     tip = cfg.robot.tip_link
-    budget = 200 * n if max_scenes is None else max_scenes
+    budget = 200 * n
     problems, scenes = [], 0
     while len(problems) < n and scenes < budget and (problems or scenes < 50):  # none in 50: the rest fail as slowly
         scenes += 1
