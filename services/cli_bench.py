@@ -14,15 +14,20 @@ app = typer.Typer(help="Benchmarks: fixed seeds, printed figures (median, p95, n
 
 
 def measured(load: int, run) -> dict:
-    """`run()` beside `load` busy processes (see --load); the result says how busy the machine was."""
+    """`run()` beside `load` busy processes (see --load); the result says how busy the machine was, and how fast
+    (a fixed workload's time before and after the run: runs of two hours compare at like times)."""
+    from replanner.bench.machine import describe, reference_ms
+
     from .procs import Load
 
+    before = reference_ms()
     try:
         with Load(load) as busy:
             result = run()
     except ReplannerError as err:
         fail(err)
     result["load"] = busy.describe()
+    result["machine"] = describe(before, reference_ms())
     return result
 
 

@@ -43,6 +43,8 @@ def test_bench_collision_json():
     assert layer["verdicts_unlike_fcl"] == 0 and layer["checks_per_s_median"] > 0
     assert abs(layer["free_for_certain"] + layer["contact_for_certain"] + layer["unsure_after_spheres"] - 1.0) < 1e-9
     assert 0.0 <= layer["unsure_to_fcl"] <= layer["unsure_after_spheres"]  # the convex pass decides the most of them
+    m = result["machine"]  # how fast the machine was around the run: figures of two hours compare at like times
+    assert m["cores"] == os.cpu_count() and m["processor"] and m["reference_ms_before"] > 0 < m["reference_ms_after"]
 
 
 def test_bench_reflex_json():
