@@ -49,6 +49,6 @@ def describe(before_ms: float, after_ms: float) -> dict:
         "python": platform.python_version(),
         "reference_ms_before": before_ms,
         "reference_ms_after": after_ms,
-        "reference": "median of 5 rounds of a fixed Python loop and numpy arithmetic on one core, measured before "
-        "and after the run without its --load: a slower machine or hour gives larger times",
+        "reference": f"median of {ROUNDS} rounds of a fixed Python loop and numpy arithmetic on one core, measured "
+        "before and after the run without its --load: a slower machine or hour gives larger times",
     }
