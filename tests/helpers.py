@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from replanner.world.geometry import Box
+from replanner.world.occupancy import OccupancyMap
 from replanner.world.transforms import make_transform
 
 ARM_UP = np.array([0.0, 0.0, 0.0, -0.0698, 0.0, 0.3, 0.785])
@@ -36,3 +37,10 @@ def sleeve(robot, q=ARM_UP, gap: float = 0.03, t: float = 0.02, bottom: float = 
         ("sleeve_ny", Box(size=(wx, t, height)), make_transform((cx, lo[1] - gap - t / 2, mid))),
         ("sleeve_lid", Box(size=(wx + 2 * t, wy + 2 * t, t)), make_transform((cx, cy, top + t / 2))),
     ]
+
+
+def box_surface(center, size, res=0.01) -> OccupancyMap:
+    """The voxels of a box's surface (edge `size` [m]) around `center`: an object the cameras see."""
+    g = np.linspace(-size / 2, size / 2, int(size / 0.005) + 1)
+    P = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    return OccupancyMap.from_points(P[(np.abs(P) >= size / 2 - 1e-9).any(1)] + center, res)

@@ -188,6 +188,12 @@ def test_broadphase_and_tables_never_change_a_verdict_nor_does_splitting_it(pand
     np.testing.assert_array_equal(batch, ref)
     np.testing.assert_array_equal(single, ref)
     np.testing.assert_array_equal(checker.is_valid_batch(Q, split=True), ref)  # halves on two threads
+    # a dense path's neighbours share their joined boxes' culling: it must skip only what each alone would
+    P, _ = checker.interpolate(np.vstack([Q[1:12:2], Q[20]]), 0.01)
+    ref = np.array([not brute.invalid(q) for q in P])
+    assert len(P) > 200 and 0.1 < ref.mean() < 0.9
+    np.testing.assert_array_equal(checker.is_valid_batch(P), ref)
+    np.testing.assert_array_equal(checker.is_valid_batch(P, split=True), ref)
 
 
 def test_a_new_maps_local_trees_give_its_whole_trees_verdicts(panda, panda_cfg):

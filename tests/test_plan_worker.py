@@ -23,11 +23,11 @@ from replanner.planning import (
     UnknownPlanner,
 )
 from replanner.stack import build_stack
-from replanner.trajectory import Trajectory
+from replanner.trajectory import Trajectory, TrajectoryError
 from replanner.world.geometry import Box
 from replanner.world.occupancy import OccupancyMap
 from replanner.world.transforms import make_transform
-from tests.helpers import ARM_FORWARD, ARM_UP, sleeve
+from tests.helpers import ARM_FORWARD, ARM_UP, box_surface, sleeve
 
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
@@ -132,6 +132,30 @@ def test_splice_continues_the_motion(worker, world, stack):
     new = worker.answers.next().trajectory
     for a, b in zip(new.state_at(0.0), (q0, qd0, qdd0)):
         np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+def test_a_replan_that_would_start_against_the_motion_is_spliced_on(worker, world, stack, panda):
+    """A box where the hand will be: the path around it starts against the arm's motion, and spliced on as planned
+    it is refused (the arm would brake and plan again from rest). Told the motion, the plan's path first steps along
+    it: the same path after that step, spliced on at speed, clear of the box."""
+    old = stack.generator.time(np.array([A, B]))
+    land = 0.6
+    q0, qd0, qdd0 = old.state_at(land)
+    hand = panda.link_pose(old.state_at(1.0)[0], "panda_hand")[:3, 3]
+    world.set_occupancy(box_surface(hand, 0.14))
+    plain = stack.planner.plan(q0, B, deadline=2.0).path
+    with pytest.raises(TrajectoryError, match="starts against the motion"):
+        stack.generator.splice(old, land, plain)
+    worker.submit(worker.answers.job(q0, B, land=10.0 + land, base=(10.0, old)), world.snapshot())
+    answer = worker.answers.next()
+    assert answer.error is None, answer.error
+    path, new = answer.result.path, answer.trajectory
+    assert qd0 @ (path[1] - path[0]) > 0 and qd0 @ (plain[1] - plain[0]) < 0
+    np.testing.assert_allclose(path[2:], plain[1:])
+    for a, b in zip(new.state_at(0.0), (q0, qd0, qdd0)):
+        np.testing.assert_allclose(a, b, atol=1e-6)
+    q = new.evaluate(np.linspace(0, new.duration, 600), order=0)[0]
+    assert stack.checker.check_path(q).valid
 
 
 def test_a_late_answer_is_never_taken_for_the_next_job(panda_cfg, stack, panda):

@@ -148,6 +148,13 @@ def test_bad_requests_name_the_problem(planner, start, goal, planner_name, deadl
         planner.plan(start, goal, planner=planner_name, deadline=deadline)
 
 
+@pytest.mark.parametrize("heading", [np.ones(6), np.r_[np.nan, np.ones(6)], "forward", np.ones((2, 7))])
+def test_a_bad_heading_names_the_problem_a_standstill_is_none(planner, heading):
+    with pytest.raises(InvalidInputError, match="heading must be 7 finite joint velocities"):
+        planner.plan(A, B, heading=heading)
+    np.testing.assert_array_equal(planner.plan(A, B, heading=np.zeros(7)).path, planner.plan(A, B).path)
+
+
 def test_a_start_a_hair_past_a_limit_plans_from_the_limit_a_start_far_past_is_refused(planner, panda):
     start = A.copy()
     start[0] = panda.limits.lower[0] - 2e-5  # an arm settled at its limit, as measured

@@ -31,7 +31,7 @@ WAIT = 60.0  # [s] a generous bound for an answer that must come; never a measur
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory, panda_cfg, panda):
     """Three jobs planned by a thread worker and recorded: a wall in the way, then only the map in the way (with a
-    part in the hand), then a goal inside a post."""
+    part in the hand), then a goal inside a post, planned from a moving arm."""
     d = tmp_path_factory.mktemp("jobs")
     stack = build_stack(panda_cfg, static=(), seed=3, cameras=False)
     world = stack.world
@@ -43,8 +43,11 @@ def recorded(tmp_path_factory, panda_cfg, panda):
     mid = panda.link_pose(A + 0.5 * (B - A), "panda_hand")[:3, 3]
     inputs = []
 
-    def plan(n, goal):
-        job = PlanJob(n, JobPurpose.REPLAN, A.copy(), goal, 2.0)
+    def plan(n, goal, base=None):
+        if base is None:
+            job = PlanJob(n, JobPurpose.REPLAN, A.copy(), goal, 2.0)
+        else:  # taking over 0.3 s into a motion started at 10 s
+            job = PlanJob(n, JobPurpose.REPLAN, base.state_at(0.3)[0], goal, 2.0, land=10.3, base=(10.0, base))
         snap = world.snapshot()
         worker.submit(job, snap)
         inputs.append((job, snap))
@@ -58,7 +61,7 @@ def recorded(tmp_path_factory, panda_cfg, panda):
     second = plan(2, B)
     world.set_occupancy(None)
     world.add("post", Box(size=(0.3, 0.3, 0.3)), make_transform(panda.link_pose(B, "panda_hand")[:3, 3]))
-    third = plan(3, B)
+    third = plan(3, B, base=stack.generator.time(np.array([A, B])))  # a replan spliced onto a motion
     worker.recorder.flush()
     worker.close()
     assert first.error is None and not first.result.direct and second.error is None and not second.result.direct
@@ -85,6 +88,9 @@ def test_a_recorded_job_is_the_job_and_the_world_it_was_planned_in(recorded):
         if occ is not None:
             np.testing.assert_array_equal(rec.keys, occ.keys)
             assert rec.resolution == occ.resolution
+    assert jobs[0].heading is None and jobs[1].heading is None
+    np.testing.assert_array_equal(jobs[2].heading, inputs[2][0].heading())
+    assert np.linalg.norm(jobs[2].heading) > 0.1
     assert [j.outcome["ok"] for j in jobs] == [True, True, False]
     assert jobs[0].outcome["plan_s"] > 0 and "goal is in collision" in jobs[2].outcome["error"]
 

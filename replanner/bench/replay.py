@@ -83,7 +83,10 @@ def run(cfg: ReplannerConfig, directory: str, *, seed: int = 0, repeat: int = 1,
             OccupancyMap(job.keys, job.resolution, broadphase_cell=cell, trusted=True) if len(job.keys) else None
         )
         try:
-            res = planner.plan(job.start, job.q_goal, planner=job.planner, deadline=job.deadline, padding=job.padding)
+            res = planner.plan(
+                job.start, job.q_goal, planner=job.planner, deadline=job.deadline, padding=job.padding,
+                heading=job.heading,
+            )  # fmt: skip
             row = {"ok": True, "plan_ms": res.total_time * 1e3, "attempts": res.attempts}
         except PlanningError as err:
             row = {"ok": False, "reason": f"{type(err).__name__}: {err}"}

@@ -27,8 +27,8 @@ def _states(robot, checker, rng, n: int) -> list[np.ndarray]:
 
 def run(cfg: ReplannerConfig, *, seed: int = 0, n: int = 100, progress=None) -> dict:
     """Each case: a timed motion between two seeded valid states; at a seeded time in its middle third, a path
-    planned from where the arm is to a new seeded goal is spliced on. Refusals (a new path that turns back) are
-    timed too: they are on the same hot path."""
+    planned from where the arm is to a new seeded goal (told the arm's motion there) is spliced on. Refusals (a
+    new path that turns back) are timed too: they are on the same hot path."""
     rng = np.random.default_rng(seed)
     robot = RobotModel.from_config(cfg.robot)
     stack = build_stack(cfg, robot=robot, static=[table()], seed=seed, cameras=False)
@@ -48,7 +48,7 @@ def run(cfg: ReplannerConfig, *, seed: int = 0, n: int = 100, progress=None) -> 
             motion = gen.time(planner.plan(a, b, deadline=5.0).path)
             t0 = float(rng.uniform(motion.duration / 3, 2 * motion.duration / 3))
             q0, qd0, _ = motion.state_at(t0)
-            new = planner.plan(q0, c, deadline=5.0).path
+            new = planner.plan(q0, c, deadline=5.0, heading=qd0).path  # told the motion, as the service plans
         except (PlanningError, TrajectoryError):
             continue
         report = TimingReport()

@@ -22,10 +22,11 @@ from ompl import geometric as og
 from ompl import util as ou
 
 from ..errors import InvalidInputError
-from ..world.collision import CollisionChecker, Contact, ContactKind
+from ..world.collision import CollisionChecker
 from ..world.layered import FastChecker
-from ..world.paddings import Paddings
+from ..world.paddings import Paddings, within_padding
 from ..world.transforms import make_transform
+from .heading import check_heading, lead_along
 from .ik import IKError, solve_ik
 from .shortcut import shortcut
 from .types import (
@@ -112,19 +113,6 @@ def _release_ompl() -> None:
     # nanobind reports OMPL objects still alive at exit as leaks: drop them first
     for planner in list(_LIVE):
         planner.si = planner.space = planner._mv = None
-
-
-def within_padding(checker: CollisionChecker, q: np.ndarray, contact: Contact, what: str) -> str:
-    """Why q is refused: "<what> is in collision: ...", or, when only the padding is touched, how far it is."""
-    if contact.kind is ContactKind.WORLD and checker.padding > 0:
-        gap = checker.clearance(q, max_distance=checker.padding)
-        if gap.distance > 0 and gap.body is not None:
-            return (
-                f"{what} is within the padding: {gap.body} is {gap.distance * 1e3:.1f} mm from {gap.obstacle!r}, "
-                f"inside the {checker.padding * 1e3:.1f} mm padding; plan with padding < {gap.distance:.4f} m to "
-                "reach it"
-            )
-    return f"{what} is in collision: {contact}"
 
 
 class Planner:
@@ -324,6 +312,7 @@ class Planner:
         deadline: float = 1.0,
         cancel: threading.Event | None = None,
         padding: float | None = None,
+        heading=None,
     ) -> PlanResult:
         """A collision-free path from start to goal (JointGoal, PoseGoal or an array) within `deadline` [s].
 
@@ -331,12 +320,15 @@ class Planner:
         `padding` [m]: this plan's padding against known objects (None: the checker's); the path resolution follows
         it (see `padded_checker`). Grasps sit within a centimetre of their objects. A padding's first plan builds its
         padded geometry before the deadline starts (the last few paddings are kept).
+        `heading` (dof,): the joint velocity of an arm moving at `start` (a replan to be spliced onto its motion): a
+        path that would start against it starts with a short step along it (planning/heading.py).
         """
+        heading = check_heading(heading, self.robot.dof)
         checker = self.paddings.get(padding, self.checker)
         base, self.checker = self.checker, checker  # the callbacks read self.checker
         self._last = checker
         try:
-            return self._plan(start, goal, planner, deadline, cancel)
+            return self._plan(start, goal, planner, deadline, cancel, heading)
         finally:
             self.checker, self._free = base, None
 
@@ -347,7 +339,7 @@ class Planner:
             if isinstance(c, FastChecker) and not c.ready():
                 c.motion()
 
-    def _plan(self, start, goal, planner: str | None, deadline: float, cancel: threading.Event | None) -> PlanResult:
+    def _plan(self, start, goal, planner: str | None, deadline: float, cancel, heading) -> PlanResult:
         clock = self.clock
         t_begin = clock()
         if self.seed is not None:
@@ -377,6 +369,9 @@ class Planner:
         def exact(W: np.ndarray) -> bool:
             return self._exact_clear(W, t_stop, t_begin, deadline)
 
+        def led(W: np.ndarray) -> np.ndarray:  # a replan's path turned to start along the motion, if time is left
+            return W if heading is None or clock() > t_stop else lead_along(W, heading, exact)
+
         # the search's resolution is the configured checker's, coarsened: a small padding only tightens the final check
         fine = self.checker.path_resolution
         self._search_resolution = self.search_coarseness * self.paddings.checker.path_resolution
@@ -384,8 +379,8 @@ class Planner:
         res = self._search_resolution
         straight = first.path_valid(direct, res) if lazy else self._motion_ok(start, q_goal, res)
         if straight and exact(direct):
-            t = clock() - t_begin
-            return PlanResult(direct, q_goal, name, 0, 0.0, 0.0, t, direct=True, raw_waypoints=2)
+            W = led(direct)
+            return PlanResult(W, q_goal, name, 0, 0.0, 0.0, clock() - t_begin, direct=True, raw_waypoints=2)
         t_searching = clock()
         ss = og.SimpleSetup(self.si)
         ss.setStartAndGoalStates(self._alloc(start), self._alloc(q_goal))
@@ -436,6 +431,7 @@ class Planner:
                 f"{name} found no path in {deadline:.3f} s ({attempts} attempts); give a longer deadline, "
                 "another planner, or check that the goal is reachable"
             )
+        W = led(W)
         total = clock() - t_begin
         name = next(k for k, v in PLANNERS.items() if v is used)
         return PlanResult(W, q_goal, name, attempts, search_time, simplify_time, total, raw_waypoints=len(raw_path))

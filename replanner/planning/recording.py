@@ -44,6 +44,7 @@ class RecordedJob:
     keys: np.ndarray
     resolution: float
     outcome: dict
+    heading: np.ndarray | None = None  # the joint velocity of the motion a replan was spliced onto (None: from rest)
 
 
 def _meta(robot, job, snapshot, answer) -> dict:
@@ -56,6 +57,7 @@ def _meta(robot, job, snapshot, answer) -> dict:
         "deadline": job.deadline,
         "padding": job.padding,
         "planner": job.planner,
+        "heading": None if (h := job.heading()) is None else np.asarray(h, float).tolist(),
         "resolution": None if occ is None else occ.resolution,
         "objects": [
             {"name": o.name, "shape": shape_to_dict(o.shape), "pose": np.asarray(o.pose).tolist()}
@@ -181,6 +183,7 @@ def _load(p: Path) -> RecordedJob:
         return RecordedJob(
             p, meta.get("robot"), meta["purpose"], start, q_goal, float(meta["deadline"]), meta["padding"],
             meta["planner"], objects, attachments, keys, float(meta["resolution"] or 0.0), meta["outcome"],
+            None if meta.get("heading") is None else np.asarray(meta["heading"], float),
         )  # fmt: skip
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as err:  # InvalidInputError too
         raise InvalidInputError(f"{p} is not a recorded planning job this version reads: {err}") from None

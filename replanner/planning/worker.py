@@ -60,6 +60,10 @@ class PlanJob:
     padding: float | None = None  # [m] from known objects; None: the planner's
     cancel: threading.Event = field(default_factory=threading.Event, repr=False)
 
+    def heading(self) -> np.ndarray | None:
+        """The joint velocity of the base's motion where the new trajectory takes over (None: from rest)."""
+        return None if self.base is None else self.base[1].state_at(self.land - self.base[0])[1]
+
     def __getstate__(self) -> dict:  # the cancel event stays in this process
         return {k: v for k, v in self.__dict__.items() if k != "cancel"}
 
@@ -169,9 +173,16 @@ class PlanWorker(ABC):
 def plan_and_time(
     planner: Planner, gen: TrajectoryGenerator, job: PlanJob, cancel: threading.Event | None = None
 ) -> tuple[Trajectory, PlanResult]:
-    """The work of a job: a path from its start, then timed from rest or spliced onto its base at `land`."""
+    """The work of a job: a path from its start, then timed from rest or spliced onto its base at `land` (the path
+    told the base's motion there: one that would start against it cannot be spliced on)."""
     res = planner.plan(
-        job.start, job.q_goal, planner=job.planner, deadline=job.deadline, cancel=cancel, padding=job.padding
+        job.start,
+        job.q_goal,
+        planner=job.planner,
+        deadline=job.deadline,
+        cancel=cancel,
+        padding=job.padding,
+        heading=job.heading(),
     )
     if job.base is not None:
         start, base = job.base

@@ -6,8 +6,10 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import numpy as np
+
 from ..errors import InvalidInputError
-from .collision import CollisionChecker
+from .collision import CollisionChecker, Contact, ContactKind
 
 MIN_RESOLUTION = 0.002  # [m] the finest path resolution a small padding asks for (padding 0: within 1 mm)
 MAX_PADDING = 0.2  # [m]
@@ -81,3 +83,16 @@ class Paddings:
         while len(self._kept) > KEEP:
             self._kept.pop(next(iter(self._kept)))
         return found
+
+
+def within_padding(checker: CollisionChecker, q: np.ndarray, contact: Contact, what: str) -> str:
+    """Why q is refused: "<what> is in collision: ...", or, when only the padding is touched, how far it is."""
+    if contact.kind is ContactKind.WORLD and checker.padding > 0:
+        gap = checker.clearance(q, max_distance=checker.padding)
+        if gap.distance > 0 and gap.body is not None:
+            return (
+                f"{what} is within the padding: {gap.body} is {gap.distance * 1e3:.1f} mm from {gap.obstacle!r}, "
+                f"inside the {checker.padding * 1e3:.1f} mm padding; plan with padding < {gap.distance:.4f} m to "
+                "reach it"
+            )
+    return f"{what} is in collision: {contact}"
