@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 
-LEAD_STEP = 0.05  # [rad] along the motion before the path turns (measured: 0.05 lets 3/4 of such paths splice)
+LEAD_STEP = 0.05  # [rad] along the motion before the path turns (0.02 and 0.1 spliced fewer: docs/planning.md)
 
 
 def check_heading(heading, dof: int) -> np.ndarray | None:
