@@ -13,16 +13,19 @@ from ..errors import InvalidInputError
 LEAD_STEP = 0.05  # [rad] along the motion before the path turns (0.02 and 0.1 spliced fewer: docs/planning.md)
 
 
-def check_heading(heading, dof: int) -> np.ndarray | None:
+def check_heading(heading, robot) -> np.ndarray | None:
     """`heading` (dof,), the arm's joint velocity (any scale) as a unit vector; None for None or a standstill."""
     if heading is None:
         return None
     try:
-        h = np.asarray(heading, dtype=np.float64)
-    except (TypeError, ValueError):
-        h = np.zeros(0)
-    if h.shape != (dof,) or not np.isfinite(h).all():
-        raise InvalidInputError(f"heading must be {dof} finite joint velocities (the arm's motion), got {heading!r}")
+        h = robot.check_q(heading, "heading")  # numbers, one per joint, finite
+        ok = h.ndim == 1
+    except InvalidInputError:
+        ok = False
+    if not ok:
+        raise InvalidInputError(
+            f"heading must be {robot.dof} finite joint velocities (the arm's motion), got {heading!r}"
+        )
     norm = float(np.linalg.norm(h))
     return h / norm if norm > 1e-9 else None
 

@@ -323,7 +323,7 @@ class Planner:
         `heading` (dof,): the joint velocity of an arm moving at `start` (a replan to be spliced onto its motion): a
         path that would start against it starts with a short step along it (planning/heading.py).
         """
-        heading = check_heading(heading, self.robot.dof)
+        heading = check_heading(heading, self.robot)
         checker = self.paddings.get(padding, self.checker)
         base, self.checker = self.checker, checker  # the callbacks read self.checker
         self._last = checker
