@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from replanner.bench.scenes import add_table, clutter_map
+from replanner.errors import InvalidInputError
 from replanner.world.broadphase import hull_apart
 from replanner.world.collision import OCTREE, CollisionChecker
 from replanner.world.collision_scene import CollisionScene
@@ -478,24 +479,62 @@ def test_path_check_finds_an_obstacle_between_far_apart_waypoints(panda, panda_c
     assert checker.is_valid(earlier)
 
 
-def test_interpolation_bounds_the_motion_of_every_robot_point(panda):
-    world = World(panda)
-    world.attach_new("part", Box(size=(0.05, 0.05, 0.3)), "panda_hand", make_transform((0, 0, 0.2)))
-    checker = CollisionChecker(panda, world, padding=0.0, path_resolution=0.02)
+def test_interpolation_bounds_the_motion_of_every_robot_point(profile):
+    """Between two samples no point of any body (an attached part included) travels farther than the resolution
+    along its way (what a padding of half the resolution relies on), on short and long segments; and the bound is
+    tight enough to matter: the farthest-moving point's travel per step averages over half the resolution (the
+    arm's longest reach gives ~0.3)."""
+    _, robot = profile
+    world = World(robot)
+    world.attach_new("part", Box(size=(0.05, 0.05, 0.3)), robot.link_names[-1], make_transform((0.1, 0, 0.2)))
+    checker = CollisionChecker(robot, world, padding=0.0, path_resolution=0.02)
     rng = np.random.default_rng(9)
-    W = panda.random_q(rng, 6)
+    a = robot.random_q(rng, 5)
+    near = np.clip(a[-1] + rng.normal(0, 0.05, (4, robot.dof)), robot.limits.lower, robot.limits.upper)
+    W = np.vstack([a, near, near[-1:]])  # long segments, short ones and a standstill
     Q, pos = checker.interpolate(W)
-    assert np.all(np.diff(pos) > 0) and pos[-1] == len(W) - 1
-    bodies = checker.body_poses(Q)
+    assert np.all(np.diff(pos) >= 0) and pos[-1] == len(W) - 1 and np.all(np.isin(np.arange(len(W)), pos))
+    sub = 8  # each step's way, sampled finely: a point's travel, not only the gap between its two ends
+    f = np.arange(sub) / sub
+    fine = np.vstack([(Q[:-1, None] + f[:, None] * (Q[1:] - Q[:-1])[:, None]).reshape(-1, robot.dof), Q[-1:]])
+    bodies = checker.body_poses(fine)
     assert bodies.names[-1] == "attached:part"
     T = bodies.poses
-    worst = 0.0
+    travel = np.zeros(len(Q) - 1)
     for bi, shape in enumerate(bodies.shapes):
         pts = shape.vertices if hasattr(shape, "vertices") else _box_corners(shape)
-        world_pts = T[:, bi, :3, :3] @ pts.T + T[:, bi, :3, 3:4]
-        step = np.linalg.norm(np.diff(world_pts, axis=0), axis=1).max()
-        worst = max(worst, float(step))
-    assert worst <= 0.02
+        world_pts = T[:, bi, :3, :3] @ pts.T + T[:, bi, :3, 3:4]  # the vertices bound every point's travel
+        way = np.linalg.norm(np.diff(world_pts, axis=0), axis=1)
+        travel = np.maximum(travel, way[: sub * (len(Q) - 1)].reshape(len(Q) - 1, sub, -1).sum(axis=1).max(axis=1))
+    assert travel.max() <= 0.02
+    moving = travel[np.diff(pos) > 0]
+    assert moving.mean() > 0.5 * 0.02, moving.mean()
+    for bad in (0.0, -0.01, float("nan"), "fine", True):
+        with pytest.raises(InvalidInputError, match="resolution must be a positive number of metres"):
+            checker.interpolate(W, bad)
+
+
+def test_a_motions_travel_bound_covers_every_points_way(profile):
+    """The bound a piece of a motion is sampled by: no vertex of any body (an attached part included) travels farther
+    along its way, on pieces from 0.02 to 3 rad; and it is not far above the farthest vertex's way (median > 0.45)."""
+    _, robot = profile
+    world = World(robot)
+    world.attach_new("part", Box(size=(0.05, 0.05, 0.3)), robot.link_names[-1], make_transform((0.1, 0, 0.2)))
+    scene = CollisionScene(robot, world.snapshot(), padding=0.0, map_padding=0.0, allowed_contacts=frozenset())
+    rng = np.random.default_rng(21)
+    ratios = []
+    for length in np.repeat([0.02, 0.1, 0.3, 1.0, 3.0], 40):
+        a = robot.random_q(rng)
+        b = np.clip(a + rng.normal(0, length / np.sqrt(robot.dof), robot.dof), robot.limits.lower, robot.limits.upper)
+        T = scene.body_poses(robot.frames(a + np.linspace(0, 1, 401)[:, None] * (b - a)))
+        way = 0.0
+        for bi, shape in enumerate(scene.shapes):
+            pts = shape.vertices if hasattr(shape, "vertices") else _box_corners(shape)
+            world_pts = T[:, bi, :3, :3] @ pts.T + T[:, bi, :3, 3:4]
+            way = max(way, np.linalg.norm(np.diff(world_pts, axis=0), axis=1).sum(axis=0).max())
+        ratios.append(way / scene.sweep.travel(a, b))
+    assert max(ratios) <= 1.0
+    assert np.median(ratios) > 0.45, np.median(ratios)
 
 
 def _box_corners(shape):

@@ -129,9 +129,9 @@ def test_anchored_motion_checks_give_every_configurations_own_verdict(profile):
     kinds = set()
     for a, b in zip(A, B):
         for res in (0.004, 0.02):
-            v0, unsure0, steps0 = each(a, b, res)
-            v, unsure, steps = anchored(a, b, res)
-            assert (v, steps) == (v0, steps0)
+            v0, unsure0, Q0 = each(a, b, res)
+            v, unsure, Q = anchored(a, b, res)
+            assert v == v0 and np.array_equal(Q, Q0)
             if v0 == 1:
                 assert sorted(unsure) == sorted(unsure0)
                 kinds.add("free" if not len(unsure0) else "unsure")
@@ -156,9 +156,9 @@ def test_a_motion_check_gives_the_layers_verdicts_on_its_configurations_every_ei
     B = np.clip(A + rng.normal(0, 0.3, A.shape), robot.limits.lower, robot.limits.upper)
     kinds = set()
     for a, b in zip(A, B):
-        v, unsure, steps = each(a, b, 0.01)
-        Q = a + (np.arange(steps + 1) / steps)[:, None] * (b - a)
-        Q[-1] = b
+        v, unsure, Q = each(a, b, 0.01)
+        steps = len(Q) - 1
+        np.testing.assert_array_equal(Q, fast.interpolate(np.array([a, b]), 0.01)[0])  # FCL's path check's
         verdict = layer.classify(Q, volume)
         if (verdict == CONTACT).any():
             assert v == -1
@@ -181,9 +181,8 @@ def test_a_motion_from_ends_known_free_checks_only_what_lies_between(profile):
     B = np.clip(A + rng.normal(0, 1, A.shape) * step, robot.limits.lower, robot.limits.upper)
     kinds = set()
     for a, b in zip(A, B):
-        steps = each(a, b, 0.01)[2]
-        Q = a + (np.arange(steps + 1) / steps)[:, None] * (b - a)
-        Q[-1] = b
+        Q = each(a, b, 0.01)[2]
+        steps = len(Q) - 1
         verdict = layer.classify(Q, volume)
         for given in (1, 2, 3):
             asked = np.ones(steps + 1, bool)
@@ -210,13 +209,12 @@ def test_a_motion_decided_in_one_call_is_the_spheres_then_the_convex_pass(profil
     kinds = set()
     for a, b in zip(A, B):
         v, rest = motion.decided(a, b, 0.01)
-        v0, unsure, steps = motion(a, b, 0.01)
+        v0, unsure, Q = motion(a, b, 0.01)
         if v0 < 0 or not len(unsure):
             assert (v, len(rest)) == (v0, 0)
             kinds.add("spheres")
             continue
-        Q = a + (unsure / steps)[:, None] * (b - a)
-        Q[unsure == steps] = b
+        Q = Q[unsure]
         verdict = decide_batch(convex, layer, robot.frames(Q), np.arange(len(Q)), volume, stop=True)
         if (verdict == CONTACT).any():
             assert (v, len(rest)) == (-1, 0)

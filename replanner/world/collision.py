@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import math
 import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
@@ -439,18 +440,13 @@ class CollisionChecker:
         W = self.robot.check_q(waypoints, "waypoints")
         if W.ndim != 2 or len(W) < 1:
             raise InvalidInputError(f"waypoints must be (M>=1, {self.robot.dof}), got shape {W.shape}")
-        res = self.path_resolution if resolution is None else float(resolution)
+        res = self.path_resolution if resolution is None else resolution
+        if isinstance(res, bool) or not (isinstance(res, int | float) and math.isfinite(res) and res > 0.0):
+            raise InvalidInputError(f"resolution must be a positive number of metres, got {resolution!r}")
         _, scene, _, _ = self._current()
         if len(W) == 1:
             return W.copy(), np.zeros(1)
-        dW = np.diff(W, axis=0)
-        steps = np.maximum(1, np.ceil(np.abs(dW) @ scene.reach / res).astype(np.int64))
-        seg = np.repeat(np.arange(len(dW)), steps)
-        frac = (np.arange(len(seg)) - np.repeat(np.cumsum(steps) - steps, steps)) / steps[seg]
-        Q = W[seg] + frac[:, None] * dW[seg]
-        Q = np.vstack([Q, W[-1:]])
-        pos = np.concatenate([seg + frac, [len(dW)]])
-        return Q, pos
+        return scene.sweep(W, float(res))
 
     def path_valid(
         self,

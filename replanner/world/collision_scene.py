@@ -17,6 +17,7 @@ from .hull_graph import edge_graph
 from .kernels import body_poses
 from .robot import RobotModel
 from .scene import WorldSnapshot
+from .sweep import Sweep
 
 OCTREE = "octree"  # the occupancy map's name in allowed contacts, contacts and clearances
 
@@ -204,6 +205,7 @@ class CollisionScene:
             radius = bounding_radius(b.raw_shape) + float(np.linalg.norm(b.T_link_body[:3, 3]))
             reach = np.maximum(reach, robot.reach(b.link, radius))
         self.reach = reach
+        self.sweep = Sweep(robot, self.body_slot, self.body_off, self.ball_c[:, :3, 0], self.ball_r, reach)
 
     def body_poses(self, frames: np.ndarray) -> np.ndarray:
         """Body poses (N, B, 4, 4) from the robot's `frames` (N, 1 + dof, 4, 4)."""

@@ -71,7 +71,7 @@ class FastChecker:
         vol = VoxelVolume.of(snap.occupancy) if c is None or c[1] is not snap.occupancy else c[3]
         limits = (self._lo, self._hi) if self.checker.check_limits else (None, None)
         motion = BoundMotion(
-            self.checker.robot, layer, vol, *limits, scene.reach, convex=convex if self.convex else None
+            self.checker.robot, layer, vol, *limits, scene.sweep, convex=convex if self.convex else None
         )
         c = self._cache = (snap.version, snap.occupancy, layer, vol, convex, motion)
         return c
@@ -121,9 +121,8 @@ class FastChecker:
         if self.convex:  # spheres and the convex pass in one compiled call
             v, rest = c[5].decided(a, b, float(resolution), given)  # an int would compile another specialization
         else:
-            v, unsure, steps = c[5](a, b, float(resolution), given)
-            rest = a + (unsure / max(steps, 1))[:, None] * (b - a)
-            rest[unsure == steps] = b
+            v, unsure, Q = c[5](a, b, float(resolution), given)
+            rest = Q[unsure]
         return v > 0 and (not len(rest) or bool(self.checker._first_invalid(rest, True)[0].all()))
 
     def __getattr__(self, name):  # everything else (interpolate, padding, check, ...) is the checker's

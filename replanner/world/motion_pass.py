@@ -1,8 +1,8 @@
 """One straight motion through the sphere layer in one compiled call: the configurations a path check would
-interpolate (collision.interpolate's, same count), classified in turn, every 8th first, stopping at the first certain
-contact. Anchors checked with a wider margin clear their neighbours without a check of their own (a plan's motions
-run at a few millimetres' resolution). The planner checks thousands of motions a plan; this keeps Python out of each
-one, the convex pass on what the spheres leave included (`BoundMotion.decided`)."""
+interpolate (collision.interpolate's: world/sweep.py), classified in turn, every 8th first, stopping at the first
+certain contact. Anchors checked with a wider margin clear their neighbours without a check of their own (a plan's
+motions run at a few millimetres' resolution). The planner checks thousands of motions a plan; this keeps Python out
+of each one, the convex pass on what the spheres leave included (`BoundMotion.decided`)."""
 
 from __future__ import annotations
 
@@ -17,12 +17,14 @@ from .kernels import frames_of
 from .layer_args import Unliteral
 from .selfcollision import may_collide_row
 from .sphere_layer import CONTACT, UNSURE, SphereScene, VoxelVolume, verdicts
+from .sweep import Sweep, sweep
 
 STRIDE = 8  # every 8th configuration first: a contact is usually found early
 AHEAD = 0.02  # [m] the margin of an anchor's check: free with it, its neighbours within that travel are too
 OUTSIDE = -2  # what `BoundMotion` says of a motion with an end outside the joint limits
 _FIELDS = (
-    "lo", "hi", "reach", "layer_reach", "env_pad", "map_pad", "self_pad", "L", "P", "D", "pfirst", "dfirst",
+    "lo", "hi", "sw_slot", "sw_centre", "sw_radius", "sw_moves", "sw_beyond", "reach", "layer_reach", "env_pad",
+    "map_pad", "self_pad", "L", "P", "D", "pfirst", "dfirst",
     "supported", "ob_R", "ob_t", "cpair_a", "cpair_b", "hv_first", "hv_nb", "hv_start",
 )  # fmt: skip
 
@@ -46,12 +48,12 @@ class BoundMotion:
     Args:
         robot: the robot model; layer, vol: the sphere layer and the map's voxel volume.
         lo, hi: joint limits the ends must lie within (None: not checked).
-        reach (dof,): how far any robot point moves per unit of each joint [m/rad] (steps = |b - a| . reach / res).
+        sweep: how finely a motion is sampled (the checker's scene's: FCL's path checks sample the same).
         ahead: [m] the margin of the anchors' checks (0: every configuration is checked on its own).
     """
 
     def __init__(
-        self, robot, layer: SphereScene, vol: VoxelVolume, lo, hi, reach, ahead: float = AHEAD,
+        self, robot, layer: SphereScene, vol: VoxelVolume, lo, hi, sweep: Sweep, ahead: float = AHEAD,
         convex: ConvexPass | None = None,
     ):  # fmt: skip
         limits = lo is not None
@@ -60,8 +62,7 @@ class BoundMotion:
         self.args = (
             np.asarray(lo if limits else np.full(dof, -np.inf), np.float64),
             np.asarray(hi if limits else np.full(dof, np.inf), np.float64),
-            np.ascontiguousarray(reach, dtype=np.float64), layer.reach, layer.env_pad, layer.map_pad, layer.self_pad,
-            layer.kernel_args(vol),
+            *sweep.args[4:], layer.reach, layer.env_pad, layer.map_pad, layer.self_pad, layer.kernel_args(vol),
         )  # fmt: skip
         cp = convex
         self.bound = None if cp is None else _bind(
@@ -75,13 +76,14 @@ class BoundMotion:
         other.ahead = float(ahead)
         return other
 
-    def __call__(self, a: np.ndarray, b: np.ndarray, resolution: float, given: int = 0) -> tuple[int, np.ndarray, int]:
-        """(verdict, unsure, steps) of the motion a -> b (float64 (dof,)) checked every `resolution` [m]: verdict
-        -1 if a configuration is in contact for certain, OUTSIDE if an end is outside the limits, else 1 with the
-        indices k of the configurations a + k / steps (b - a) the layer could not decide. resolution 0: a alone.
+    def __call__(
+        self, a: np.ndarray, b: np.ndarray, resolution: float, given: int = 0
+    ) -> tuple[int, np.ndarray, np.ndarray]:
+        """(verdict, unsure, Q) of the motion a -> b (float64 (dof,)) checked every `resolution` [m]: Q its
+        configurations (a first, b last; a alone for resolution 0), verdict -1 if one is in contact for certain,
+        OUTSIDE if an end is outside the limits, else 1 with the indices into Q of those the layer could not decide.
         `given`: ends already known free by the exact verdict, not checked again (1: a, 2: b, 3: both)."""
-        v, unsure, steps, _ = _sphere_motion(a, b, resolution, self.ahead, given, *self.args)
-        return v, unsure, steps
+        return _sphere_motion(a, b, resolution, self.ahead, given, *self.args)
 
     def decided(self, a: np.ndarray, b: np.ndarray, resolution: float, given: int = 0) -> tuple[int, np.ndarray]:
         """(verdict, rest) of the same motion with the convex pass (world/convex_pass.py, given at construction) on
@@ -99,9 +101,10 @@ def _bind(*args):
 def _decided_bound(a, b, resolution, ahead, given, m):
     """`BoundMotion.decided` of the arguments bound in m: the spheres, then the convex pass on what they left."""
     L = m.L
-    v, unsure, steps, Q = _sphere_motion(
-        a, b, resolution, ahead, given, m.lo, m.hi, m.reach, m.layer_reach, m.env_pad, m.map_pad, m.self_pad, L
-    )
+    v, unsure, Q = _sphere_motion(
+        a, b, resolution, ahead, given, m.lo, m.hi, m.sw_slot, m.sw_centre, m.sw_radius, m.sw_moves, m.sw_beyond,
+        m.reach, m.layer_reach, m.env_pad, m.map_pad, m.self_pad, L,
+    )  # fmt: skip
     u = unsure.shape[0]
     if v != 1 or u == 0:
         return v, Q[:0]
@@ -125,18 +128,22 @@ def _decided_bound(a, b, resolution, ahead, given, m):
 
 
 @numba.njit(cache=True, nogil=True)
-def _sphere_motion(a, b, resolution, ahead, given, lo, hi, reach, layer_reach, env_pad, map_pad, self_pad, L):
-    """(verdict, unsure, steps, Q): BoundMotion's answer and the motion's configurations Q (steps + 1, dof)."""
-    travel = 0.0
+def _sphere_motion(
+    a, b, resolution, ahead, given, lo, hi, slot, centre, radius, moves, beyond, reach, layer_reach, env_pad, map_pad,
+    self_pad, L,
+):  # fmt: skip
+    """(verdict, unsure, Q): BoundMotion's answer and the motion's configurations Q (steps + 1, dof)."""
     for j in range(a.shape[0]):
         if not (lo[j] <= a[j] <= hi[j] and lo[j] <= b[j] <= hi[j]):
-            return OUTSIDE, np.empty(0, np.int64), 0, np.empty((0, a.shape[0]))
-        travel += abs(b[j] - a[j]) * reach[j]
-    steps = 0 if resolution <= 0.0 else max(1, np.int64(np.ceil(travel / resolution)))
-    Q = np.empty((steps + 1, a.shape[0]))
-    for k in range(steps + 1):
-        for j in range(a.shape[0]):
-            Q[k, j] = a[j] + k / steps * (b[j] - a[j]) if k < steps else b[j]
+            return OUTSIDE, np.empty(0, np.int64), np.empty((0, a.shape[0]))
+    if resolution <= 0.0:
+        Q = np.empty((1, a.shape[0]))
+        Q[0] = a
+    else:
+        W = np.empty((2, a.shape[0]))
+        W[0], W[1] = a, b
+        Q = sweep(W, resolution, L.Fj, L.prismatic, L.joints, L.parents, slot, centre, radius, moves, beyond, reach)[0]
+    steps = Q.shape[0] - 1
     v = np.zeros(steps + 1, np.int8)
     known = np.zeros(steps + 1, np.bool_)  # free for certain without a check of its own
     ends = np.zeros(steps + 1, np.bool_)  # ends the caller knows free by the exact verdict: nothing to ask
@@ -146,14 +153,17 @@ def _sphere_motion(a, b, resolution, ahead, given, lo, hi, reach, layer_reach, e
     # anchors every 2J + 1 configurations, checked with every padding grown by `ahead`: free there, the J on
     # each side are free too, as no sphere centre moves more than J steps' travel <= ahead (relative: 2 x, and
     # a self pair's padding grows by 2 x ahead at least)
-    travel = 0.0
-    for j in range(a.shape[0]):
-        travel += abs(b[j] - a[j]) * layer_reach[j]
-    J = steps if travel <= 0.0 else min(steps, np.int64(np.floor(ahead * max(steps, 1) / travel)))
+    step = 0.0  # the farthest any sphere centre moves in one step (steps differ from piece to piece)
+    for k in range(steps):
+        travel = 0.0
+        for j in range(a.shape[0]):
+            travel += abs(Q[k + 1, j] - Q[k, j]) * layer_reach[j]
+        step = max(step, travel)
+    J = steps if step <= 0.0 else min(steps, np.int64(np.floor(ahead / step)))
     if ahead > 0.0 and J >= 1:
         anchors = np.minimum(np.arange(J, steps + J + 1, 2 * J + 1), steps)
         if verdicts(Q, anchors, True, env_pad + ahead, map_pad + ahead, self_pad + ahead, L, v) >= 0:
-            return -1, np.empty(0, np.int64), steps, Q  # an inner ball's contact: no padding takes part in it
+            return -1, np.empty(0, np.int64), Q  # an inner ball's contact: no padding takes part in it
         for k in anchors:
             if v[k] == 1:
                 known[max(k - J, 0) : k + J + 1] = True
@@ -166,7 +176,7 @@ def _sphere_motion(a, b, resolution, ahead, given, lo, hi, reach, layer_reach, e
                 seq[m] = k
                 m += 1
     if verdicts(Q, seq[~(known[seq] | ends[seq])], True, env_pad, map_pad, self_pad, L, v) >= 0:
-        return -1, np.empty(0, np.int64), steps, Q
+        return -1, np.empty(0, np.int64), Q
     unsure = np.empty(steps + 1, np.int64)
     u = 0
     for k in seq:
@@ -178,4 +188,4 @@ def _sphere_motion(a, b, resolution, ahead, given, lo, hi, reach, layer_reach, e
         ):
             unsure[u] = k
             u += 1
-    return 1, unsure[:u], steps, Q
+    return 1, unsure[:u], Q

@@ -440,6 +440,11 @@ class RobotModel:
             int(self._link_frame[li]) + 1, float(np.linalg.norm(self._link_offset[li][:3, 3])) + radius
         )
 
+    @property
+    def moved_by(self) -> np.ndarray:
+        """(dof, dof) bool, read-only: [k, j] when active joint j moves joint k's frame (k == j or j before k)."""
+        return self._frame_anc
+
     def frame_reach(self, slot: int, radius: float) -> np.ndarray:
         """`reach` of the points within `radius` [m] of the origin of frame `slot` (a slot of `frames`: 0 the base)."""
         k = slot - 1
