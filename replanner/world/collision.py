@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import logging
 import math
+import numbers
 import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
@@ -441,7 +442,7 @@ class CollisionChecker:
         if W.ndim != 2 or len(W) < 1:
             raise InvalidInputError(f"waypoints must be (M>=1, {self.robot.dof}), got shape {W.shape}")
         res = self.path_resolution if resolution is None else resolution
-        if isinstance(res, bool) or not (isinstance(res, int | float) and math.isfinite(res) and res > 0.0):
+        if isinstance(res, bool) or not (isinstance(res, numbers.Real) and math.isfinite(res) and res > 0.0):
             raise InvalidInputError(f"resolution must be a positive number of metres, got {resolution!r}")
         _, scene, _, _ = self._current()
         if len(W) == 1:

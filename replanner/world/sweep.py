@@ -18,7 +18,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .kernels import frames_of
+from .kernels import frames_of, kernel_array
 
 PIECE = 0.15  # [rad] pieces at most this long (summed over joints): the speed bound's change grows with the square
 PIECE_STEPS = 8  # nor shorter than this many steps of the longest reach: each piece rounds its steps up
@@ -49,6 +49,7 @@ class Sweep:
             F, prismatic, joints, parents, slot, np.ascontiguousarray(c), np.asarray(radius, np.float64),
             np.ascontiguousarray(moves), np.ascontiguousarray(beyond), np.ascontiguousarray(reach, dtype=np.float64),
         )  # fmt: skip
+        self(np.zeros((2, robot.dof)), 1.0)  # compiled (or loaded) now, not in the middle of a running path check
 
     def travel(self, a: np.ndarray, b: np.ndarray) -> float:
         """The bound [m] on how far any body point travels on the straight motion a -> b (one piece)."""
@@ -58,7 +59,7 @@ class Sweep:
 
     def __call__(self, W: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
         """(Q, pos) of waypoints W (M >= 2, dof) sampled every `resolution` [m] (see sweep)."""
-        return sweep(np.ascontiguousarray(W, dtype=np.float64), float(resolution), *self.args)
+        return sweep(kernel_array(W), float(resolution), *self.args)
 
 
 @numba.njit(cache=True, nogil=True)
