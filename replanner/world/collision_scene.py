@@ -204,8 +204,7 @@ class CollisionScene:
         for b in bodies:
             radius = bounding_radius(b.raw_shape) + float(np.linalg.norm(b.T_link_body[:3, 3]))
             reach = np.maximum(reach, robot.reach(b.link, radius))
-        self.reach = reach
-        self.sweep = Sweep(robot, self.body_slot, self.body_off, self.ball_c[:, :3, 0], self.ball_r, reach)
+        self.sweep = Sweep(robot, self.body_slot, (self.body_off @ self.ball_c)[:, :3, 0], self.ball_r, reach)
 
     def body_poses(self, frames: np.ndarray) -> np.ndarray:
         """Body poses (N, B, 4, 4) from the robot's `frames` (N, 1 + dof, 4, 4)."""

@@ -30,17 +30,15 @@ class Sweep:
     Args:
         robot: the robot model (its chain).
         slot (B,): each body's slot in `robot.frames` (0: the base).
-        off (B, 4, 4): each body's pose in its slot's frame.
-        centre (B, 3), radius (B,): a ball in each body's own frame containing it.
+        centre (B, 3), radius (B,): a ball containing each body, its centre in the body's slot's frame.
         reach (dof,): the longest reach [m/rad] of any body point from each joint (never exceeded).
     """
 
-    def __init__(self, robot, slot, off, centre, radius, reach):
+    def __init__(self, robot, slot, centre, radius, reach):
         F, prismatic, joints, parents = robot.chain
         slot = np.asarray(slot, np.int64)
-        centre = np.asarray(centre, np.float64).reshape(-1, 3)
-        # ball centres in their slot's frame; moves[b, j]: joint j moves body b; beyond[j, k]: k lies past j
-        c = np.einsum("bij,bj->bi", np.asarray(off, np.float64)[:, :3, :3], centre) + np.asarray(off)[:, :3, 3]
+        c = np.asarray(centre, np.float64).reshape(-1, 3)
+        # moves[b, j]: joint j moves body b; beyond[j, k]: k lies past j
         anc = robot.moved_by
         moves = np.array([anc[s - 1] if s > 0 else np.zeros(robot.dof, bool) for s in slot]).reshape(-1, robot.dof)
         beyond = anc.T.copy()
@@ -66,7 +64,7 @@ class Sweep:
 def piece_travel(a, b, u, v, F, prismatic, joints, parents, slot, centre, radius, moves, beyond, reach, qm, fr, R):
     """Upper bound [m] on how far any body point moves from a + u (b - a) to a + v (b - a) (qm (1, dof), fr
     (1, 1 + dof, 4, 4) and R (dof,) are work space)."""
-    dof = a.shape[0]
+    dof, w = a.shape[0], v - u
     for j in range(dof):
         qm[0, j] = a[j] + 0.5 * (u + v) * (b[j] - a[j])
     frames_of(qm, 0, F, prismatic, joints, parents, fr, 0)
@@ -88,7 +86,7 @@ def piece_travel(a, b, u, v, F, prismatic, joints, parents, slot, centre, radius
             j = joints[i]
             if not moves[n, j]:
                 continue
-            dj = (b[j] - a[j]) * (v - u)
+            dj = (b[j] - a[j]) * w
             if prismatic[j]:
                 R[j] = reach[j]
                 revolute = False
@@ -99,12 +97,11 @@ def piece_travel(a, b, u, v, F, prismatic, joints, parents, slot, centre, radius
             ex, ey, ez = px - ox, py - oy, pz - oz
             t = ex * zx + ey * zy + ez * zz
             e = np.sqrt(ex * ex + ey * ey + ez * ez)
-            grow = 0.0  # how far the joints past j move the body relative to j's axis, half the piece each way
-            past = 0.0  # sum over k >= j of |dq_k| R_k
+            past = 0.0  # sum over k > j of |dq_k| R_k: how far the joints past j move the body relative to j's axis
             for k in range(dof):
                 if beyond[j, k] and moves[n, k]:
-                    grow += 0.5 * abs(b[k] - a[k]) * (v - u) * R[k]
-                    past += abs(b[k] - a[k]) * (v - u) * R[k]
+                    past += abs(b[k] - a[k]) * w * R[k]
+            grow = 0.5 * past  # half the piece each way from its middle
             R[j] = min(np.sqrt(max(e * e - t * t, 0.0)) + rn + grow, reach[j])
             past += abs(dj) * R[j]
             travel += abs(dj) * R[j]
@@ -115,7 +112,7 @@ def piece_travel(a, b, u, v, F, prismatic, joints, parents, slot, centre, radius
             up = 0.0  # how fast j's axis turns: the joints before it
             for k in range(dof):
                 if beyond[k, j] and moves[n, k]:
-                    up += abs(b[k] - a[k]) * (v - u)
+                    up += abs(b[k] - a[k]) * w
             acc += abs(dj) * (2.0 * up * (e + grow) + past) + rn * abs(dj) * up
         speed = np.sqrt(vx * vx + vy * vy + vz * vz) + rn * np.sqrt(wx * wx + wy * wy + wz * wz) + 0.5 * acc
         worst = max(worst, min(travel, speed) if revolute else travel)
