@@ -333,6 +333,34 @@ def test_a_shortcut_the_coarse_check_lets_through_a_thin_plate_is_shortcut_again
     assert fine.check_path(W).valid and len(W) <= len(detour)
 
 
+def test_a_search_that_slipped_grows_anew_and_slips_once_per_resolution_at_most(panda, panda_cfg, monkeypatch):
+    """A path the coarse search found that FCL refuses at the padding's resolution (a slip): the trees hold its
+    coarsely checked motions, so every tree is grown anew, finer. A grasp of the table_pick family (seed 4242, the
+    bench's 51st) slips twice; kept trees went on returning slipped paths until the deadline (134 in 1 s)."""
+    from replanner.bench import planning as bench
+    from replanner.planning import padded_checker
+    from replanner.planning.planner import SLIP_REFINE
+    from replanner.stack import build_stack
+
+    p = bench.make_problems(panda, panda_cfg, "table_pick", 51, seed=4242)[50]
+    stack = build_stack(panda_cfg, robot=panda, static=p.objects, seed=4242, cameras=False)
+    planner = stack.planner
+    verdicts: list[bool] = []
+    simplify = Planner.simplify
+
+    def recorded(self, raw, *args, **kw):
+        W = simplify(self, raw, *args, **kw)
+        verdicts.append(W is None)
+        return W
+
+    monkeypatch.setattr(Planner, "simplify", recorded)
+    res = planner.plan(p.start, p.goal, deadline=10.0, padding=p.padding)
+    fine = padded_checker(stack.checker, p.padding)  # FCL
+    coarse = panda_cfg.planning.search_coarseness * panda_cfg.collision.path_resolution
+    assert 1 <= sum(verdicts) <= math.ceil(math.log(coarse / fine.path_resolution, SLIP_REFINE))
+    assert fine.check_path(res.path).valid
+
+
 def test_the_standard_families_grasp_their_cans_close_and_clear(panda, panda_cfg):
     """Each standard family's goal holds its can between the fingers: clear of everything in pybullet, yet close."""
     import pybullet as pb

@@ -3,7 +3,8 @@
 Validity comes from the `CollisionChecker`: single states through a Python callback, and whole motions
 through a `MotionValidator` subclass that checks every interpolated configuration of a segment in one batch.
 A failed attempt is retried until the deadline (paper 002's fallback), each planner growing its own tree on from
-where its last attempt stopped; the path is then shortcut, with the same checker, within the same deadline.
+where its last attempt stopped (anew after a slip); the path is then shortcut, with the same checker, within the
+same deadline.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ FINAL_CHECKS_SHARE = 0.03  # of a deadline: the search stops this much early, FC
 CONFIRM_CHUNK = 512  # configurations FCL checks between two looks at the deadline (~0.4 ms alone, a few under load)
 CONFIRM_FAR = (0.05, 2048)  # while 50 ms are left, chunks this large: two threads share them (halves of 256 do not)
 START_LIMIT_SLACK = 1e-3  # [rad] a start this far past a joint limit (an arm at its limit, measured) plans from it
+SLIP_REFINE = 2.0  # a search after a slip checks this many times finer (each refinement costs a search anew)
 
 PLANNERS = {
     name: getattr(og, name)
@@ -127,8 +129,8 @@ class Planner:
         shortcut_tries: random shortcuts tried after the search (at most; six misses in a row end it sooner).
         planner_range: planner step [rad]; None keeps OMPL's default.
         search_coarseness: motions are checked this many times coarser than the checker's path resolution while
-            searching, whatever a plan's padding (the result is then checked at the padding's resolution, and
-            searched again, each time this many times finer, if a thin obstacle slipped through).
+            searching, whatever a plan's padding (the result is then checked at the padding's resolution; if a thin
+            obstacle slipped through, every tree is searched anew, SLIP_REFINE times finer each time).
         retry_planner: the default planner's retries alternate with this one (None: the same planner again).
         seed: every plan starts from this seed (OMPL's generator and the shortcutting): the same problem gives the
             same path, alone or after others. None: fresh randomness. OMPL's generator is per process: planners
@@ -419,8 +421,10 @@ class Planner:
                 t_simp = clock()
                 W = self.simplify(raw_path, self._search_resolution, t_end, exact)
                 simplify_time += clock() - t_simp
-                if W is None:  # a thin obstacle slipped between the coarse search checks: search finer
-                    self._search_resolution = max(fine, self._search_resolution / self.search_coarseness)
+                if W is None:  # a thin obstacle slipped between the coarse search checks: search anew, finer
+                    self._search_resolution = max(fine, self._search_resolution / SLIP_REFINE)
+                    for grown in algos.values():  # motions checked as coarsely: kept, they give slipped paths again
+                        grown.clear()
             if W is None:
                 pdef.clearSolutionPaths()
         search_time = clock() - t_searching - simplify_time
