@@ -354,11 +354,13 @@ def test_a_search_that_slipped_grows_anew_and_slips_once_per_resolution_at_most(
         return W
 
     monkeypatch.setattr(Planner, "simplify", recorded)
-    res = planner.plan(p.start, p.goal, deadline=10.0, padding=p.padding)
     fine = padded_checker(stack.checker, p.padding)  # FCL
     coarse = panda_cfg.planning.search_coarseness * panda_cfg.collision.path_resolution
-    assert 1 <= sum(verdicts) <= math.ceil(math.log(coarse / fine.path_resolution, SLIP_REFINE))
-    assert fine.check_path(res.path).valid
+    for name in (None, "RRTConnect"):  # retries alternating with the retry planner; one planner, grown anew itself
+        verdicts.clear()
+        res = planner.plan(p.start, p.goal, planner=name, deadline=10.0, padding=p.padding)
+        assert 1 <= sum(verdicts) <= math.ceil(math.log(coarse / fine.path_resolution, SLIP_REFINE)), name
+        assert fine.check_path(res.path).valid
 
 
 def test_the_standard_families_grasp_their_cans_close_and_clear(panda, panda_cfg):
