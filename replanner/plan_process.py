@@ -21,6 +21,7 @@ EARLY_CANCELS = 64  # cancels of jobs not (yet) seen that are kept
 
 def serve(conn: Connection, cancel_conn: Connection) -> None:
     from . import late_compiles
+    from .collision.selfclearance import clearance_tables
     from .config import parse_config
     from .planning import PlanningCanceled
     from .planning.worker import error_for_the_wire, plan_and_time
@@ -31,7 +32,7 @@ def serve(conn: Connection, cancel_conn: Connection) -> None:
     cfg = parse_config(cfg_data)
     with late_compiles.building():
         stack = build_stack(cfg, seed=seed, static=(), cameras=False)
-        stack.robot.self_clearance_tables()
+        clearance_tables(stack.robot)
     late_compiles.watch()  # a compile from here on eats a replan's deadline
     world = stack.world
     cancel = threading.Event()

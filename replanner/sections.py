@@ -249,6 +249,13 @@ class PerceptionConfig(Section):
         return self
 
 
+class CollisionLayer(str, Enum):
+    """What a plan's search asks first; FCL checks the path it returns either way."""
+
+    SPHERES = "spheres"  # the fast layer: spheres, then the convex shapes, FCL for what they cannot decide
+    FCL = "fcl"  # the exact checker alone
+
+
 class PlanningConfig(Section):
     planner: str = Field("RRTConnect", description="Default OMPL planner (see replanner.planning.PLANNERS).")
     deadline: float = Field(1.0, gt=0.0, le=60.0, description="Default planning deadline [s], retries included.")
@@ -268,8 +275,8 @@ class PlanningConfig(Section):
     )
     tube_radius: float = Field(0.1, gt=0.0, le=1.0, description="Timed curve's max distance from the path [rad].")
     ik_restarts: int = Field(16, ge=1, le=256)
-    collision_layer: Literal["spheres", "fcl"] = Field(
-        "spheres",
+    collision_layer: CollisionLayer = Field(
+        CollisionLayer.SPHERES,
         description="What the search asks first: 'spheres' (a conservative sphere model; FCL decides what it cannot "
         "clear and checks the returned path) or 'fcl' alone.",
     )

@@ -13,18 +13,18 @@ from dataclasses import dataclass
 from typing import Literal
 
 from . import late_compiles
+from .collision.exact import CollisionChecker
+from .collision.paddings import with_map_margin
 from .config import ReplannerConfig
 from .control.controller import Controller
 from .control.latency import LatencyAccount
+from .model.geometry import Shape
+from .model.robot import RobotModel
 from .monitor import Monitor, build_monitor
 from .perception import Perception
 from .planning import InlineWorker, Planner, PlanWorker, ProcessWorker, ThreadWorker
 from .planning.recording import JobRecorder
 from .trajectory import Trajectory, TrajectoryGenerator
-from .world.collision import CollisionChecker
-from .world.geometry import Shape
-from .world.paddings import with_map_margin
-from .world.robot import RobotModel
 from .world.scene import World, scene_from_config
 
 

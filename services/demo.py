@@ -159,14 +159,14 @@ def _wait_ready(client: Client, session, procs: list[Proc], logs: Path, timeout:
     raise ReplannerError(f"the service and the sim did not come up within {timeout:.0f} s (logs in {logs})")
 
 
-def _completed(r) -> int:
+def completed_cycles(r) -> int:
     return sum(1 for e in r.truth if e["kind"] == "placed" and e.get("on") != e.get("picked_from"))
 
 
 def _watch(recorder, client_proc, procs, cycles, duration, t0, policy, live, console, cfg, tick=None) -> None:
     def view() -> Table:
         r = recorder.snapshot()
-        done = _completed(r)
+        done = completed_cycles(r)
         contacts = sum(1 for e in r.truth if e["kind"] == "contact")
         clear = [e["clearance"] for e in r.truth if e["kind"] == "clearance" and e.get("clearance") is not None]
         state = r.status[-1]["state"] if r.status else "?"
@@ -204,7 +204,7 @@ def _watch(recorder, client_proc, procs, cycles, duration, t0, policy, live, con
             time.sleep(0.25)
             if time.time() - last > 10:
                 last = time.time()
-                done = _completed(recorder.snapshot())
+                done = completed_cycles(recorder.snapshot())
                 console.print(f"[{time.time() - t0:6.1f} s] cycles completed: {done}/{cycles}", highlight=False)
 
 

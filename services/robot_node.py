@@ -13,12 +13,12 @@ import zenoh
 from replanner.config import ReplannerConfig
 from replanner.control import JointState, KinematicDriver
 from replanner.errors import InvalidInputError
+from replanner.model.robot import RobotModel
 from replanner.trajectory import SampledTrajectory
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
 from replanner.transport.refusals import Refusals, access_control_on
 from replanner.transport.watch import ServiceWatch
-from replanner.world.robot import RobotModel
 
 log = logging.getLogger(__name__)
 

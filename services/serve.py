@@ -17,14 +17,14 @@ from replanner.config import ReplannerConfig
 from replanner.control import Goal, GoalRejected, JointState
 from replanner.control.liveness import admit_joint_state
 from replanner.errors import InvalidInputError, ReplannerError, UnknownNameError, WorldError
+from replanner.model.geometry import encloses_base, gap_to_links
+from replanner.model.transforms import check_transform
 from replanner.perception import CloudFrame, CloudRejected
 from replanner.planning import JointGoal, PoseGoal
 from replanner.stack import build_stack
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
 from replanner.transport.refusals import Refusals, access_control_on
-from replanner.world.geometry import encloses_base, gap_to_links
-from replanner.world.transforms import check_transform
 
 log = logging.getLogger(__name__)
 MAX_GRASP_GAP = 0.05  # [m] an attached object is held: this close to the link that carries it (suction: ~3 cm)
@@ -401,7 +401,7 @@ class Service:
 
 
 def _pose(T) -> dict:
-    from replanner.world.transforms import matrix_to_quat
+    from replanner.model.transforms import matrix_to_quat
 
     return {"position": T[:3, 3].tolist(), "quat_xyzw": matrix_to_quat(T[:3, :3]).tolist()}
 

@@ -16,12 +16,12 @@ import zenoh
 
 from replanner.config import ReplannerConfig
 from replanner.errors import InvalidInputError, ReplannerError
+from replanner.model.robot import RobotModel
 from replanner.sim.cloud_publisher import CloudPublisher
 from replanner.sim.config import CellConfig
 from replanner.sim.physics import PhysicsSim
 from replanner.transport.keys import Keys, sim_keys
 from replanner.transport.watch import ServiceWatch
-from replanner.world.robot import RobotModel
 
 log = logging.getLogger(__name__)
 

@@ -61,7 +61,7 @@ class Sampler:
             {
                 "minute": round(elapsed / 60.0, 2),
                 "rss_mb": {k: round(v, 1) for k, v in rss.items() if v is not None},
-                "cycles": demo_mod._completed(r),
+                "cycles": demo_mod.completed_cycles(r),
                 "collisions": sum(1 for e in r.truth if e["kind"] == "contact"),
                 "rejections": r.status[-1].get("rejections", 0) if r.status else 0,
                 "reaction_time_s": {

@@ -20,10 +20,10 @@ import zenoh
 from replanner.apps.cell_watch import CellWatch
 from replanner.apps.client import Client
 from replanner.errors import ReplannerError
+from replanner.model.robot import RobotModel
 from replanner.perception.camera import pose_from_config
 from replanner.sim.config import CellConfig
 from replanner.transport.keys import Keys
-from replanner.world.robot import RobotModel
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +83,7 @@ def _shape_mesh(shape: dict, color):
 
 def _mesh_or_name(name: str, urdf_dir):
     """The URDF's mesh file as the collision model finds it (package://, relative, absolute); else the name."""
-    from replanner.world.urdf import resolve_mesh
+    from replanner.model.urdf import resolve_mesh
 
     try:
         return resolve_mesh(name, urdf_dir)
@@ -324,7 +324,7 @@ class CellView:
                     T_in[:3, :3], T_in[:3, 3] = Rotation.from_quat(quat).as_matrix(), pos
                     self._attached.append((handle, obj["link"], T_in))
             except (KeyError, TypeError, ValueError, ReplannerError) as err:
-                self.watch._bad("scene object", err)
+                self.watch.ignore("scene object", err)
 
     def _draw_operator(self, pose: list) -> None:
         import trimesh

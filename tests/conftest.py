@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from replanner.config import load_config
-from replanner.world.robot import RobotModel
+from replanner.model.robot import RobotModel
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"

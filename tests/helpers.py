@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from replanner.world.geometry import Box
+from replanner.model.geometry import Box
+from replanner.model.transforms import make_transform
 from replanner.world.occupancy import OccupancyMap
-from replanner.world.transforms import make_transform
 
 ARM_UP = np.array([0.0, 0.0, 0.0, -0.0698, 0.0, 0.3, 0.785])
 ARM_FORWARD = np.array([0.0, 1.4, 0.0, -0.3, 0.0, 1.7, 0.785])  # reaching low, under the sleeve

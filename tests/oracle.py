@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
+from replanner.model.robot import RobotModel
 from replanner.sim.scene import PyBulletScene
-from replanner.world.robot import RobotModel
 
 # pybullet inflates every convex hull it builds from a URDF mesh by a 1 mm collision margin, so its distances
 # are ~1 mm per hull smaller than the hulls' true distance (test_oracle_margin measures it).

@@ -9,10 +9,10 @@ import yaml
 
 from replanner.bench.scenes import add_table
 from replanner.config import parse_config
+from replanner.model.robot import RobotModel
 from replanner.perception import CameraModel, CloudFrame, Perception, pose_from_config
 from replanner.sim.camera import PyBulletDepthCamera
 from replanner.sim.scene import PyBulletScene
-from replanner.world.robot import RobotModel
 from replanner.world.scene import World
 from tests.conftest import CONFIGS
 

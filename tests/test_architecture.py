@@ -1,5 +1,6 @@
-"""The house: no import circle, no module over 500 lines, the core free of the simulator, the benches and plotting;
-tests through public APIs only. Read from the sources' own imports (ast), as a reviewer would."""
+"""The house: no import circle; model, world, collision and its fast layer stand on each other in that order; the core
+free of the simulator, the benches and plotting; nobody asks which checker it holds or reads another object's private
+attributes; tests through public APIs only. Read from the sources' own code (ast), as a reviewer would."""
 
 from __future__ import annotations
 
@@ -10,6 +11,9 @@ from tests.conftest import ROOT
 
 PACKAGES = {"replanner": ROOT / "replanner", "replanner_services": ROOT / "services"}
 NOT_CORE = ("replanner.sim", "replanner.bench", "replanner.apps")
+FLOORS = ("replanner.model", "replanner.world", "replanner.collision", "replanner.collision.fast")  # ground floor first
+CHECKERS = {"CollisionChecker", "FastChecker"}
+STDLIB_PRIVATE = {"os._exit", "sys._current_frames"}  # documented names of the standard library
 FORBIDDEN_IN_CORE = ("pybullet", "matplotlib", *NOT_CORE, "replanner_services")
 
 
@@ -99,9 +103,52 @@ def test_no_import_circle():
     assert _cycles(faceless) == []
 
 
-def test_no_module_over_500_lines():
-    long = {name: n for name, path in _modules().items() if (n := len(path.read_text().splitlines())) > 500}
-    assert long == {}
+def _floor(module: str) -> int | None:
+    """The highest of FLOORS that holds `module` (None: another room)."""
+    found = None
+    for i, room in enumerate(FLOORS):
+        if module == room or module.startswith(room + "."):
+            found = i
+    return found
+
+
+def test_model_world_collision_and_fast_import_downward_only():
+    graph, _ = _graph()
+    floors = {m: f for m in graph if (f := _floor(m)) is not None}
+    up = sorted(f"{m} -> {d}" for m, f in floors.items() for d in graph[m] if (g := _floor(d)) is not None and g > f)
+    assert up == []
+    assert set(floors.values()) == set(range(len(FLOORS)))  # every floor has modules: the check saw them
+
+
+def _library_trees():
+    for root in PACKAGES.values():
+        for path in sorted(root.rglob("*.py")):
+            yield path, ast.parse(path.read_text())
+
+
+def test_the_library_reads_no_private_attribute_of_another_object():
+    private = []
+    for path, tree in _library_trees():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+                if not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")):
+                    if ast.unparse(node) not in STDLIB_PRIVATE:
+                        private.append(f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)}")
+    assert private == []
+
+
+def test_no_code_asks_which_checker_it_holds():
+    """The exact and the fast checker answer one protocol (collision/checker.py): only the checkers know their kind."""
+    asked = []
+    for path, tree in _library_trees():
+        if path.is_relative_to(ROOT / "replanner" / "collision"):
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "isinstance":
+                names = {n.id if isinstance(n, ast.Name) else getattr(n, "attr", "") for n in ast.walk(node.args[1])}
+                if names & CHECKERS:
+                    asked.append(f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)}")
+    assert asked == []
 
 
 def test_the_core_imports_neither_the_sim_nor_the_benches_nor_plotting():

@@ -46,7 +46,7 @@ import json, os
 import numba
 import replanner
 from replanner.cache_dirs import sources_digest
-from replanner.world.kernels import box_centre
+from replanner.collision.boxes import box_centre
 import numpy as np
 box_centre(np.eye(4), np.zeros(3), np.zeros(3))
 print(json.dumps([numba.config.CACHE_DIR, os.environ["NUMBA_CACHE_DIR"], sources_digest()]))

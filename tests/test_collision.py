@@ -7,16 +7,17 @@ import numpy as np
 import pytest
 
 from replanner.bench.scenes import add_table, clutter_map
+from replanner.collision.boxes import boxes_apart
+from replanner.collision.broadphase import hull_apart
+from replanner.collision.exact import OCTREE, CollisionChecker
+from replanner.collision.hulls import edge_graph
+from replanner.collision.scene import CollisionScene
+from replanner.collision.selfclearance import clearance_tables
 from replanner.errors import InvalidInputError
-from replanner.world.broadphase import hull_apart
-from replanner.world.collision import OCTREE, CollisionChecker
-from replanner.world.collision_scene import CollisionScene
-from replanner.world.geometry import Box, Cylinder, Sphere, padded_geometry, padded_vertices, to_fcl
-from replanner.world.hull_graph import edge_graph
-from replanner.world.kernels import boxes_apart
+from replanner.model.geometry import Box, Cylinder, Sphere, padded_geometry, padded_vertices, to_fcl
+from replanner.model.transforms import make_transform
 from replanner.world.occupancy import OccupancyMap
 from replanner.world.scene import World
-from replanner.world.transforms import make_transform
 from tests.oracle import HULL_MARGIN, PyBulletOracle
 
 PANDA_FOLDED = [0.0, 0.18, 0.02, -3.03, -0.63, 0.15, 0.8]  # elbow folded: the hand is inside link 1/2
@@ -244,7 +245,7 @@ def test_a_batch_against_the_map_alone_sees_its_voxels_and_nothing_else(panda, p
 def test_the_tables_coarse_blocks_give_the_fine_tables_answers(profile):
     """A block's least clearance is asked before the grid point's: the same answer as the fine table alone."""
     _, robot = profile
-    t = robot.self_clearance_tables()
+    t = clearance_tables(robot)
     rng = np.random.default_rng(2)
     Q = robot.random_q(rng, 4000)
     Q[::2] = np.clip(Q[::2] * 0.2, robot.limits.lower, robot.limits.upper)  # near zero, where links are close

@@ -10,8 +10,8 @@ import yaml
 
 from replanner.config import ReplannerConfig, load_config
 from replanner.errors import ConfigError, RobotModelError, UnknownNameError
+from replanner.model.robot import RobotModel
 from replanner.sim.config import load_cell_config
-from replanner.world.robot import RobotModel
 from tests.conftest import CONFIGS
 
 

@@ -13,11 +13,11 @@ import yaml
 from replanner.config import parse_config
 from replanner.control import Goal, GoalRejected, GoalStatus, State
 from replanner.errors import InvalidInputError, UnknownNameError
+from replanner.model.geometry import Box, Sphere
+from replanner.model.transforms import make_transform
 from replanner.planning import PoseGoal
 from replanner.sim.stepped import SteppedSim
 from replanner.trajectory import progress_along
-from replanner.world.geometry import Box, Sphere
-from replanner.world.transforms import make_transform
 from tests.conftest import CONFIGS
 from tests.helpers import ARM_FORWARD, ARM_UP, sleeve
 

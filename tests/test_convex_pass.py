@@ -7,15 +7,16 @@ import numpy as np
 import pytest
 
 from replanner.bench.scenes import add_table, clutter_map, person_map
-from replanner.world.collision import CollisionChecker
-from replanner.world.convex_pass import ball_meets_cells, decide_batch
-from replanner.world.geometry import Box, ConvexHull, Cylinder, Sphere, padded, padding_directions, to_fcl
-from replanner.world.gjk import APART, BAND, POINTS, TOUCH, decide
-from replanner.world.hull_graph import climb, edge_graph
-from replanner.world.layered import FastChecker
+from replanner.collision.exact import CollisionChecker
+from replanner.collision.fast.checker import FastChecker
+from replanner.collision.fast.convex import ball_meets_cells, decide_batch
+from replanner.collision.fast.gjk import APART, BAND, POINTS, TOUCH, decide
+from replanner.collision.fast.layer import FREE, UNSURE
+from replanner.collision.hulls import climb, edge_graph
+from replanner.model.geometry import Box, ConvexHull, Cylinder, Sphere, padded, padding_directions, to_fcl
+from replanner.model.transforms import make_transform
 from replanner.world.scene import World
-from replanner.world.sphere_layer import FREE, UNSURE, VoxelVolume
-from replanner.world.transforms import make_transform
+from replanner.world.volume import VoxelVolume
 
 
 def test_gjk_says_apart_or_touching_as_fcl_does_on_random_shapes():
@@ -74,7 +75,8 @@ def test_the_convex_pass_decides_what_the_spheres_cannot_as_fcl_does(profile):
                                        allowed_contacts=cfg.collision.allowed_contacts)  # fmt: skip
             fast = FastChecker(checker)
             Q = robot.random_q(rng, 4_000)
-            layer, volume, convex = fast.passes()
+            c = fast.layers()
+            layer, volume, convex = c.spheres, c.volume, c.convex
             frames = robot.frames(Q)
             unsure = np.flatnonzero(layer.classify(Q, volume) == UNSURE)
             verdict = decide_batch(convex, layer, frames, unsure, volume)
@@ -147,7 +149,8 @@ def test_the_map_near_a_person_is_decided_by_the_pass_as_fcl_does(panda, panda_c
     allowed = [("panda_link0", "table")]
     checker = CollisionChecker(panda, world, padding=0.01, map_padding=0.04, allowed_contacts=allowed)
     fast = FastChecker(checker)
-    layer, volume, convex = fast.passes()
+    c = fast.layers()
+    layer, volume, convex = c.spheres, c.volume, c.convex
     Q = panda.random_q(rng, 6000)
     unsure = np.flatnonzero(layer.classify(Q, volume) == UNSURE)
     verdict = decide_batch(convex, layer, panda.frames(Q), unsure, volume)

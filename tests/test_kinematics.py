@@ -7,7 +7,7 @@ import pybullet as pb
 import pytest
 
 from replanner.errors import InvalidInputError
-from replanner.world.transforms import rotation_angle
+from replanner.model.transforms import rotation_angle
 from tests.oracle import PyBulletOracle
 
 

@@ -9,12 +9,12 @@ import pytest
 from replanner.bench.scenes import table
 from replanner.control import Timeline
 from replanner.errors import ReplannerError
+from replanner.model.geometry import Box
+from replanner.model.transforms import make_transform
 from replanner.monitor import MapPathCheck, Monitor, ScenePathCheck, Verdict, build_monitor
 from replanner.monitor.checks import Check, MotionView
 from replanner.stack import build_stack
-from replanner.world.geometry import Box
 from replanner.world.occupancy import OccupancyMap, voxel_keys
-from replanner.world.transforms import make_transform
 from tests.helpers import box_surface
 
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])

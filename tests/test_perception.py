@@ -8,10 +8,10 @@ import fcl
 import numpy as np
 import pytest
 
+from replanner.model.geometry import Box, padded_geometry, sample_surface
+from replanner.model.transforms import make_transform
 from replanner.perception import CloudFrame, CloudRejected
-from replanner.world.geometry import Box, padded_geometry, sample_surface
 from replanner.world.occupancy import voxel_keys
-from replanner.world.transforms import make_transform
 from tests.perception_helpers import Rig, config_dict
 
 

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from replanner.bench.scenes import add_table
+from replanner.model.geometry import Box
+from replanner.model.transforms import make_transform
 from replanner.planning import (
     GoalInvalid,
     JobPurpose,
@@ -24,9 +26,7 @@ from replanner.planning import (
 )
 from replanner.stack import build_stack
 from replanner.trajectory import Trajectory, TrajectoryError
-from replanner.world.geometry import Box
 from replanner.world.occupancy import OccupancyMap
-from replanner.world.transforms import make_transform
 from tests.helpers import ARM_FORWARD, ARM_UP, box_surface, sleeve
 
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])

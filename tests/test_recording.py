@@ -16,12 +16,12 @@ from replanner.bench import replay
 from replanner.bench.scenes import add_table
 from replanner.config import parse_config
 from replanner.errors import InvalidInputError
+from replanner.model.geometry import Box, Mesh, Sphere, shape_from_dict, shape_to_dict
+from replanner.model.transforms import make_transform
 from replanner.planning import JobPurpose, PlanAnswer, PlanJob, ThreadWorker
 from replanner.planning.recording import JobRecorder, load_jobs, recorded_config
 from replanner.stack import build_stack
-from replanner.world.geometry import Box, Mesh, Sphere, shape_from_dict, shape_to_dict
 from replanner.world.occupancy import OccupancyMap
-from replanner.world.transforms import make_transform
 
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])

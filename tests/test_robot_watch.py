@@ -15,10 +15,10 @@ from replanner_services.soak import children as _children
 
 from replanner.apps.client import Client
 from replanner.config import TransportConfig, parse_config
+from replanner.model.robot import RobotModel
 from replanner.trajectory.generator import TrajectoryGenerator
 from replanner.transport import messages as m
 from replanner.transport.session import make_config, open_session
-from replanner.world.robot import RobotModel
 from tests.conftest import CONFIGS
 from tests.service_helpers import Stack, free_port, node_session
 from tests.test_service import HOME, Recorder, _wait

@@ -18,6 +18,7 @@ from replanner_services.procs import Proc, replanner_cmd
 from replanner.apps.client import Client
 from replanner.config import parse_config
 from replanner.errors import ConfigError
+from replanner.model.robot import RobotModel
 from replanner.sections import TransportConfig
 from replanner.transport import messages as m
 from replanner.transport.keys import Keys
@@ -31,7 +32,6 @@ from replanner.transport.secure import (
     write_profile,
 )
 from replanner.transport.session import free_port, make_config, open_session
-from replanner.world.robot import RobotModel
 from tests.conftest import CONFIGS
 from tests.test_service import HOME, Recorder, _wait
 

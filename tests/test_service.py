@@ -15,12 +15,12 @@ from replanner_services.sim_node import CameraNode
 
 from replanner.apps.client import Client
 from replanner.config import parse_config
+from replanner.model.geometry import Box
+from replanner.model.robot import RobotModel
+from replanner.model.transforms import make_transform
 from replanner.sim.scene import PyBulletScene
 from replanner.transport import messages as m
-from replanner.world.geometry import Box
-from replanner.world.robot import RobotModel
 from replanner.world.scene import scene_from_config
-from replanner.world.transforms import make_transform
 from tests.conftest import CONFIGS
 from tests.service_helpers import Stack, free_port, node_session, replanner_cmd
 

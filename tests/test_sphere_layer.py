@@ -6,24 +6,16 @@ import numpy as np
 import pybullet as pb
 
 from replanner.bench.scenes import add_table, clutter_map
-from replanner.world.collision import CollisionChecker
-from replanner.world.convex_pass import decide_batch
-from replanner.world.geometry import Box, Cylinder, Sphere, sample_surface
-from replanner.world.layered import FastChecker
+from replanner.collision.exact import CollisionChecker
+from replanner.collision.fast.checker import FastChecker
+from replanner.collision.fast.convex import decide_batch
+from replanner.collision.fast.layer import CONTACT, FREE, UNSURE, ball_meets_box, primitive_distance
+from replanner.collision.fast.spheres import cover, refine
+from replanner.model.geometry import Box, Cylinder, Sphere, sample_surface
+from replanner.model.transforms import make_transform
 from replanner.world.occupancy import OccupancyMap
 from replanner.world.scene import World
-from replanner.world.sphere_layer import (
-    CBLOCK,
-    CONTACT,
-    FREE,
-    UNSURE,
-    VoxelVolume,
-    ball_meets_box,
-    map_box,
-    primitive_distance,
-)
-from replanner.world.spheres import cover, refine
-from replanner.world.transforms import make_transform
+from replanner.world.volume import CBLOCK, VoxelVolume, map_box
 from tests.oracle import HULL_MARGIN, PyBulletOracle
 
 
@@ -66,7 +58,7 @@ def test_what_the_layer_calls_free_fcl_and_pybullet_call_free(profile):
     checker = CollisionChecker.from_config(robot, world, cfg.collision)
     fast = FastChecker(checker)
     Q = robot.random_q(rng, 10_000)
-    layer, volume = fast.layer()
+    layer, volume = fast.layers().spheres, fast.layers().volume
     verdict = layer.classify(Q, volume)
     np.testing.assert_array_equal(layer.classify(Q, volume, parallel=True), verdict)
     clear, certain = verdict == FREE, verdict == CONTACT
@@ -121,7 +113,7 @@ def test_anchored_motion_checks_give_every_configurations_own_verdict(profile):
     """A motion's anchors, checked with a wider margin, clear their neighbours unchecked: the verdict and the
     configurations left to FCL must be those of checking each configuration on its own."""
     robot, rng, fast = _cluttered(profile, 11)
-    anchored = fast.motion()
+    anchored = fast.layers().motion
     each = anchored.with_ahead(0.0)
     A = robot.random_q(rng, 600)
     step = rng.normal(0, 1, A.shape) * rng.uniform(0.02, 0.6, (600, 1))
@@ -150,8 +142,8 @@ def test_a_motion_check_gives_the_layers_verdicts_on_its_configurations_every_ei
     world.add("post", Cylinder(radius=0.05, length=0.8), make_transform((0.45, 0.35, 0.4), (0, 0, 0, 1)))
     world.set_occupancy(clutter_map(rng, 5_000))
     fast = FastChecker(CollisionChecker.from_config(robot, world, cfg.collision))
-    layer, volume = fast.layer()
-    each = fast.motion().with_ahead(0.0)
+    layer, volume = fast.layers().spheres, fast.layers().volume
+    each = fast.layers().motion.with_ahead(0.0)
     A = robot.random_q(rng, 300)
     B = np.clip(A + rng.normal(0, 0.3, A.shape), robot.limits.lower, robot.limits.upper)
     kinds = set()
@@ -174,8 +166,8 @@ def test_a_motion_from_ends_known_free_checks_only_what_lies_between(profile):
     """`given` ends (a planner's states found free before) are not asked again: the verdict and the configurations
     left unsure are those of the motion's other configurations, an end in contact included."""
     robot, rng, fast = _cluttered(profile, 17)
-    layer, volume = fast.layer()
-    each = fast.motion().with_ahead(0.0)
+    layer, volume = fast.layers().spheres, fast.layers().volume
+    each = fast.layers().motion.with_ahead(0.0)
     A = robot.random_q(rng, 400)
     step = np.repeat([0.3, 0.002], 200)[:, None]  # short motions: an end in contact, nothing between
     B = np.clip(A + rng.normal(0, 1, A.shape) * step, robot.limits.lower, robot.limits.upper)
@@ -203,7 +195,8 @@ def test_a_motion_decided_in_one_call_is_the_spheres_then_the_convex_pass(profil
     """`BoundMotion.decided` runs the convex pass inside the motion's compiled call: its verdict and the
     configurations it leaves to FCL are those of the sphere pass followed by `decide_batch`, call by call."""
     robot, rng, fast = _cluttered(profile, 13)
-    motion, (layer, volume, convex) = fast.motion(), fast.passes()
+    c = fast.layers()
+    motion, layer, volume, convex = c.motion, c.spheres, c.volume, c.convex
     A = robot.random_q(rng, 400)
     B = np.clip(A + rng.normal(0, 0.3, A.shape), robot.limits.lower, robot.limits.upper)
     kinds = set()
@@ -263,7 +256,7 @@ def test_an_obstacles_world_box_never_parts_it_from_a_ball_that_meets_it(panda, 
         shape = shapes[k % 3]
         world.add(f"o{k}", shape, make_transform(rng.uniform(-0.6, 0.6, 3), rng.normal(size=4)))
     checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
-    layer, _ = FastChecker(checker).layer()
+    layer = FastChecker(checker).layers().spheres
     met = skipped = 0
     for _ in range(20_000):
         o, x, r = int(rng.integers(len(layer.ob_kind))), rng.uniform(-1.0, 1.0, 3), float(rng.uniform(0.0, 0.3))
@@ -284,9 +277,9 @@ def test_one_voxel_on_the_arm_is_seen_and_an_empty_map_changes_no_verdict(panda,
     checker = CollisionChecker.from_config(panda, world, panda_cfg.collision)
     fast = FastChecker(checker)
     Q = panda.random_q(rng, 3000)
-    bare = fast.layer()[0].classify(Q, fast.layer()[1])
+    bare = fast.layers().spheres.classify(Q, fast.layers().volume)
     world.set_occupancy(OccupancyMap.empty(0.01))
-    layer, volume = fast.layer()
+    layer, volume = fast.layers().spheres, fast.layers().volume
     np.testing.assert_array_equal(layer.classify(Q, volume), bare)
     free = Q[checker.is_valid_batch(Q)][:40]
     assert len(free) == 40
@@ -295,7 +288,7 @@ def test_one_voxel_on_the_arm_is_seen_and_an_empty_map_changes_no_verdict(panda,
         T = panda.link_pose(q, body.link) @ body.T_link_body
         p = T[:3, :3] @ sample_surface(body.shape, 1, rng)[0] + T[:3, 3]
         world.set_occupancy(OccupancyMap.from_points(p[None], 0.01))
-        layer, volume = fast.layer()
+        layer, volume = fast.layers().spheres, fast.layers().volume
         assert not checker.is_valid(q), (k, body.link)
         assert layer.classify(q[None], volume)[0] != FREE, (k, body.link)
         assert not fast.is_valid(q) and not fast.is_valid_batch(q[None])[0], (k, body.link)

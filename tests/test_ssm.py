@@ -10,14 +10,14 @@ import pytest
 
 from replanner.bench.scenes import table
 from replanner.control import Goal, GoalStatus
+from replanner.model.geometry import Box
+from replanner.model.transforms import make_transform
 from replanner.monitor import SeparationTerms, SpeedSeparationCheck, protective_separation, safe_speed_scale
 from replanner.monitor.checks import MotionView
 from replanner.monitor.ssm import intrusion_distance
 from replanner.sim.stepped import SteppedSim
 from replanner.stack import build_stack
-from replanner.world.geometry import Box
 from replanner.world.occupancy import OccupancyMap
-from replanner.world.transforms import make_transform
 
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
 B = np.array([1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])

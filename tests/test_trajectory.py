@@ -7,11 +7,11 @@ import pytest
 
 from replanner.bench import planning as bench
 from replanner.bench.scenes import add_table
+from replanner.collision.exact import CollisionChecker
 from replanner.errors import InvalidInputError
 from replanner.sim.scene import PyBulletScene
 from replanner.stack import build_stack
 from replanner.trajectory import TrajectoryError, TrajectoryGenerator, distance_to_polyline, progress_along
-from replanner.world.collision import CollisionChecker
 from replanner.world.scene import World
 
 DT = 1e-3

@@ -14,12 +14,16 @@ from replanner.config import load_config
 from replanner.perception import kernels as pk
 from replanner.stack import build_stack
 from replanner.trajectory import kernels as tk
-from replanner.world import broadphase as wb
+from replanner.collision import boxes as cb
+from replanner.collision import broadphase as wb
+from replanner.model import kinematics as mk
 from replanner.world import kernels as wk
 
 build_stack(load_config("panda"), static=[table()], cameras=True)
 called = {
-    wk: ["chain_frames", "body_poses", "body_boxes", "boxes_hit_table", "octree_stream", "count_cells"],
+    mk: ["chain_frames"],
+    cb: ["body_poses", "body_boxes"],
+    wk: ["boxes_hit_table", "octree_stream", "count_cells"],
     wb: ["broadphase"],
     tk: ["quintic_peaks", "path_bounds", "slowest_entry"],
     pk: ["voxelize", "mark_inside", "neighbour_counts", "union_sorted", "in_sorted", "cell_keys", "shadow_cells"],

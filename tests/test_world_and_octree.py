@@ -8,12 +8,12 @@ import fcl
 import numpy as np
 import pytest
 
+from replanner.collision.exact import CollisionChecker
 from replanner.errors import InvalidInputError, UnknownNameError, WorldError
-from replanner.world.collision import CollisionChecker
-from replanner.world.geometry import Box, Mesh, Sphere
+from replanner.model.geometry import Box, Mesh, Sphere
+from replanner.model.transforms import make_transform
 from replanner.world.occupancy import OccupancyMap, voxel_centers
 from replanner.world.scene import World
-from replanner.world.transforms import make_transform
 
 
 def _voxel_distance(centers, res, p):

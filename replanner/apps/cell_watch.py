@@ -99,7 +99,8 @@ class CellWatch:
         return None if tr is None else np.asarray(tr[1].q, float)
 
     # ------------------------------------------------------------------ callbacks: store only
-    def _bad(self, what: str, err: Exception) -> None:
+    def ignore(self, what: str, err: Exception) -> None:
+        """Count a malformed message and say so in the log (the first five, then every hundredth)."""
         self.bad += 1
         if self.bad <= 5 or self.bad % 100 == 0:
             log.warning("ignored a %s message (%d so far): %s", what, self.bad, err)
@@ -108,7 +109,7 @@ class CellWatch:
         try:
             _, q, _ = m.decode_joint_state(sample.payload.to_bytes(), self.joint_names)
         except (InvalidInputError, ValueError) as err:
-            return self._bad("joint state", err)
+            return self.ignore("joint state", err)
         with self._lock:
             self.q = np.asarray(q, float)
 
@@ -119,7 +120,7 @@ class CellWatch:
             if not isinstance(obj, dict):
                 raise ValueError("not a JSON object")
         except ValueError as err:
-            self._bad(what, err)
+            self.ignore(what, err)
             return None
         return obj
 
@@ -139,7 +140,7 @@ class CellWatch:
         try:
             start, traj = SampledTrajectory.from_message(sample.payload.to_bytes(), self.joint_names)
         except (InvalidInputError, ValueError) as err:
-            return self._bad("trajectory", err)
+            return self.ignore("trajectory", err)
         with self._lock:
             self.trajectory = (start, traj)
             self.trajectory_count += 1
@@ -195,10 +196,10 @@ class CellWatch:
                             self.attachments = list(reply.get("attachments") or [])
                             self.scene_count += 1
             except (ValueError, TypeError, binascii.Error) as err:
-                self._bad("map or scene reply", err)
+                self.ignore("map or scene reply", err)
             except Exception as err:  # a closed session at shutdown, a transport error: say it, keep polling
                 if not self._stop.is_set():
-                    self._bad("query", err)
+                    self.ignore("query", err)
             with self._lock:
                 fresh = self.status is not None and time.monotonic() - self.status_at < 3.0
             self.problem = None if (self.alive and fresh) else self._no_service()

@@ -27,7 +27,8 @@ class GoalFuture:
         self._done = threading.Event()
         self.result: dict | None = None
 
-    def _set(self, result: dict) -> None:
+    def resolve(self, result: dict) -> None:
+        """The goal's result has come: `wait` returns it."""
         self.result = result
         self._done.set()
 
@@ -98,7 +99,7 @@ class Client:
         with self._lock:
             early = self._early.pop(goal_id, None)
         if early is not None:
-            fut._set(early)
+            fut.resolve(early)
         return fut
 
     def move(self, joints=None, pose=None, timeout: float = 60.0, **options) -> dict:
@@ -186,7 +187,7 @@ class Client:
                 if len(self._early) > 1000:
                     self._early.pop(next(iter(self._early)))
         if fut is not None:
-            fut._set(res)
+            fut.resolve(res)
 
 
 def _json_callback(cb):

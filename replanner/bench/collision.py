@@ -7,14 +7,14 @@ import time
 
 import numpy as np
 
+from ..collision.exact import CollisionChecker
+from ..collision.fast.checker import FastChecker
+from ..collision.fast.convex import decide_batch
+from ..collision.fast.layer import CONTACT, FREE, UNSURE
 from ..config import ReplannerConfig
+from ..model.robot import RobotModel
 from ..stats import summary
-from ..world.collision import CollisionChecker
-from ..world.convex_pass import decide_batch
-from ..world.layered import FastChecker
-from ..world.robot import RobotModel
 from ..world.scene import World
-from ..world.sphere_layer import CONTACT, FREE, UNSURE
 from .scenes import add_table, clutter_map
 
 
@@ -117,7 +117,8 @@ def _layer_rates(checker: CollisionChecker, Qs: list[np.ndarray], chunk: int) ->
     FCL's, and the parallel kernel's unlike the serial one's: 0)."""
     fast = FastChecker(checker)
     robot = checker.robot
-    layer, vol, convex = fast.passes()
+    c = fast.layers()
+    layer, vol, convex = c.spheres, c.volume, c.convex
     whole, par, chunked, with_fcl, shares, disagree, left = [], [], [], [], [], 0, []
     for r, Q in enumerate(Qs):
         t0 = time.perf_counter()

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..world.geometry import Box, Cylinder, Shape
-from ..world.transforms import make_transform, matrix_to_quat, quat_to_matrix
+from ..model.geometry import Box, Cylinder, Shape
+from ..model.transforms import make_transform, matrix_to_quat, quat_to_matrix
 
 STANDARD = ("bookshelf_small", "bookshelf_tall", "bookshelf_thin", "box", "table_pick", "table_under_pick")
 GRASP_PADDING = 0.002  # [m] grasps sit within a centimetre of their objects

@@ -9,11 +9,11 @@ import numpy as np
 
 from ..config import ReplannerConfig
 from ..control import Controller, Goal, KinematicDriver, State
+from ..model.robot import RobotModel
 from ..planning import Planner, PlanningError
 from ..stack import build_stack
 from ..stats import summary
 from ..world.occupancy import OccupancyMap
-from ..world.robot import RobotModel
 from .scenes import clutter_map, table
 
 A = np.array([-1.4, 0.2, 0.0, -1.9, 0.0, 2.1, 0.785])

@@ -8,13 +8,13 @@ import numpy as np
 
 from ..config import ReplannerConfig
 from ..errors import ConfigError
+from ..model.geometry import Box
+from ..model.robot import RobotModel
+from ..model.transforms import make_transform
 from ..perception import CameraModel, CloudFrame, Perception, pose_from_config
 from ..stats import summary
-from ..world.geometry import Box
 from ..world.occupancy import voxel_keys
-from ..world.robot import RobotModel
 from ..world.scene import World
-from ..world.transforms import make_transform
 from .scenes import add_table, operator_boxes, tabletop_clutter
 
 

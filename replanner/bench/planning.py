@@ -8,21 +8,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..collision.exact import CollisionChecker
+from ..collision.paddings import padded_checker
 from ..config import ReplannerConfig
 from ..errors import InvalidInputError, ReplannerError
+from ..model.geometry import Box, Cylinder, Shape
+from ..model.robot import RobotModel
+from ..model.transforms import make_transform
 from ..planning.ik import IKError, solve_ik
 from ..planning.planner import FINAL_CHECKS_SHARE
 from ..planning.types import PlanningError
 from ..stack import build_stack
 from ..stats import summary
 from ..trajectory import Trajectory, distance_to_polyline
-from ..world.collision import CollisionChecker
-from ..world.geometry import Box, Cylinder, Shape
 from ..world.occupancy import OccupancyMap
-from ..world.paddings import padded_checker
-from ..world.robot import RobotModel
 from ..world.scene import World
-from ..world.transforms import make_transform
 from .families import GRASP_PADDING, STANDARD, standard_scene
 from .scenes import PERSON, TABLE_SIZE, person_map
 
@@ -59,7 +59,7 @@ class Problem:
 
 def _yaw(q_xyzw, yaw: float):
     """Compose a rotation about the base z axis (yaw [rad]) before the tool orientation."""
-    from ..world.transforms import matrix_to_quat, quat_to_matrix
+    from ..model.transforms import matrix_to_quat, quat_to_matrix
 
     c, s = np.cos(yaw), np.sin(yaw)
     Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])

@@ -12,11 +12,11 @@ import pybullet as pb
 
 from ..config import ReplannerConfig
 from ..control import Goal, GoalRejected, GoalStatus, State
+from ..model.geometry import Box
+from ..model.transforms import make_transform
 from ..sim.kinematic import KinematicSim
 from ..sim.scene import PyBulletScene
 from ..stats import summary
-from ..world.geometry import Box
-from ..world.transforms import make_transform
 from .scenes import TABLE_SIZE
 
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])
@@ -197,13 +197,10 @@ def _ms(a, b):
 
 def _min_distance(sim: KinematicSim, t0: float, t1: float) -> float:
     """Ground truth from pybullet: the smallest distance between the robot and the box over the run."""
-    body = sim.scene.objects.get("intruder")
     best = np.inf
     for t in np.arange(t0, t1, 0.01):
         q, _ = sim.driver.timeline.state(t)
-        with sim._pb_lock:
-            sim.scene.set_q(q)
-            pts = pb.getClosestPoints(sim.scene.body, body, 0.5, physicsClientId=sim.scene.client)
+        pts = sim.closest_points(q, "intruder", 0.5)
         if pts:
             best = min(best, min(p[8] for p in pts))
     return float(best)

@@ -11,14 +11,14 @@ import numpy as np
 import trimesh
 
 from ..config import ReplannerConfig
+from ..model.geometry import Box, Cylinder
+from ..model.robot import RobotModel
+from ..model.transforms import make_transform
 from ..perception import CameraModel
 from ..perception.camera import look_at
 from ..reflex import ForceField, Reflex, VertexModel, VoxelMapBuilder
 from ..reflex.kernels import AvoidanceKernels, KernelSpec, NullspaceReflex, OccupancyGrid, attractive_velocity
 from ..stats import summary
-from ..world.geometry import Box, Cylinder
-from ..world.robot import RobotModel
-from ..world.transforms import make_transform
 
 BOUNDS_LO, EXTENT = (-1.0, -1.0, 0.0), (2.0, 2.0, 1.8)  # the paper's 2000 x 2000 x 1800 mm around the robot
 PAPER_GPU_MS = {(0.01, 4701): 11.0, (0.005, 4701): 14.0, (0.01, 2468): 11.0, (0.005, 2468): 11.0}  # Table II

@@ -10,12 +10,12 @@ import numpy as np
 
 from ..config import ReplannerConfig, parse_config
 from ..errors import InvalidInputError
+from ..model.geometry import shape_to_dict
 from ..planning.recording import RecordedJob, load_jobs, recorded_config
 from ..planning.types import PlanningError
 from ..sim.config import load_cell_config
 from ..stack import build_stack
 from ..stats import summary
-from ..world.geometry import shape_to_dict
 from ..world.occupancy import OccupancyMap
 
 

@@ -8,11 +8,11 @@ import pybullet as pb
 
 from ..config import ReplannerConfig
 from ..control import Goal, GoalStatus
+from ..model.geometry import Box
+from ..model.robot import RobotModel
+from ..model.transforms import make_transform
 from ..sim.scene import PyBulletScene
 from ..sim.stepped import SteppedSim
-from ..world.geometry import Box
-from ..world.robot import RobotModel
-from ..world.transforms import make_transform
 from .scenes import table
 
 A = np.array([-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785])

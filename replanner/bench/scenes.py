@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from ..world.geometry import Box
+from ..model.geometry import Box
+from ..model.transforms import make_transform
 from ..world.occupancy import OccupancyMap, voxel_keys
 from ..world.scene import World
-from ..world.transforms import make_transform
 
 TABLE_SIZE = (1.6, 1.4, 0.05)
 

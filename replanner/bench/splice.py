@@ -8,11 +8,11 @@ import numpy as np
 
 from ..config import ReplannerConfig
 from ..errors import TrajectoryError
+from ..model.robot import RobotModel
 from ..planning import PlanningError
 from ..stack import build_stack
 from ..stats import summary
 from ..trajectory import TimingReport
-from ..world.robot import RobotModel
 from .scenes import table
 
 

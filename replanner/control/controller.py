@@ -19,14 +19,14 @@ from collections.abc import Callable
 import numpy as np
 from transitions import Machine
 
+from ..collision.exact import CollisionChecker
 from ..errors import ReplannerError, UnknownNameError
+from ..model.robot import RobotModel
 from ..monitor import Monitor
 from ..planning import GoalInvalid, Planner, StartInvalid
 from ..planning.worker import JobPurpose, PlanAnswer, PlanJob, PlanWorker
 from ..sections import AfterBrake, ControllerConfig, Reaction
 from ..trajectory import Trajectory, TrajectoryError, TrajectoryGenerator
-from ..world.collision import CollisionChecker
-from ..world.robot import RobotModel
 from .goals import Goal, GoalHandle, GoalResult, GoalStatus
 from .history import History, TransitionRecord
 from .holding import Holding

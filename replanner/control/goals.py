@@ -9,10 +9,10 @@ from enum import Enum
 
 import numpy as np
 
+from ..collision.paddings import check_padding
 from ..errors import InvalidInputError, ReplannerError
 from ..planning.planner import planner_class
 from ..planning.types import JointGoal, PoseGoal
-from ..world.paddings import check_padding
 
 MAX_ID_LENGTH = 128
 

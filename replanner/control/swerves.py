@@ -7,10 +7,10 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..collision.exact import CollisionChecker
+from ..model.robot import RobotModel
 from ..reflex import Reflex
 from ..sections import ReflexConfig
-from ..world.collision import CollisionChecker
-from ..world.robot import RobotModel
 from .moves import Moves
 
 

@@ -8,9 +8,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..collision.exact import CollisionChecker, Contact
+from ..collision.paddings import Paddings
 from ..trajectory import Trajectory, TrajectoryGenerator
-from ..world.collision import CollisionChecker, Contact
-from ..world.paddings import Paddings
 
 
 @dataclass(frozen=True, eq=False)

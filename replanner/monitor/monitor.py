@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..collision.exact import CollisionChecker
 from ..sections import ControllerConfig
 from ..trajectory import Trajectory, TrajectoryGenerator
-from ..world.collision import CollisionChecker
 from .checks import (
     Check,
     MapPathCheck,

@@ -18,11 +18,11 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from ..collision.exact import CollisionChecker
+from ..model.geometry import Box, ConvexHull, Cylinder, Mesh, Shape, Sphere
 from ..sections import SpeedSeparationConfig
 from ..trajectory import TrajectoryGenerator
 from ..trajectory.timelaw import bounds_of, min_distance
-from ..world.collision import CollisionChecker
-from ..world.geometry import Box, ConvexHull, Cylinder, Mesh, Shape, Sphere
 from .checks import Check, MotionView, Verdict
 
 

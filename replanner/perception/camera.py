@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError
+from ..model.transforms import make_transform
 from ..sections import PoseConfig, SensorConfig
-from ..world.transforms import make_transform
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:

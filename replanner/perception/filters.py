@@ -12,7 +12,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from ..world.geometry import Box, ConvexHull, Cylinder, Mesh, Shape, Sphere
+from ..model.geometry import Box, ConvexHull, Cylinder, Mesh, Shape, Sphere
 from ..world.scene import WorldSnapshot
 from .kernels import cell_keys, mark_inside, neighbour_counts
 

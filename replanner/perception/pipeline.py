@@ -19,12 +19,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InvalidInputError
+from ..model.kinematics import kernel_array
+from ..model.robot import RobotModel
+from ..model.transforms import check_transform
 from ..sections import PerceptionConfig, SensorConfig
-from ..world.kernels import kernel_array
 from ..world.occupancy import OccupancyMap
-from ..world.robot import RobotModel
 from ..world.scene import World
-from ..world.transforms import check_transform
 from .camera import CameraModel, pose_from_config
 from .filters import SelfFilter, VoxelGrid, finite_in_range, statistical_outliers
 from .grid import LogOddsGrid

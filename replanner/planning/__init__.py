@@ -1,6 +1,6 @@
 """The planning room: OMPL over the joint space within a deadline, IK for pose goals, a background plan worker."""
 
-from ..world.paddings import padded_checker
+from ..collision.paddings import padded_checker
 from .ik import IKError, IKResult, solve_ik
 from .planner import PLANNERS, Planner, planner_class
 from .types import (

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError, ReplannerError
-from ..world.transforms import make_transform
+from ..model.transforms import make_transform
 
 
 class IKError(ReplannerError):

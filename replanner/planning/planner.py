@@ -1,10 +1,10 @@
 """Motion planning with OMPL (2.x Python bindings) over the robot's joint space, within a deadline.
 
-Validity comes from the `CollisionChecker`: single states through a Python callback, and whole motions
-through a `MotionValidator` subclass that checks every interpolated configuration of a segment in one batch.
-A failed attempt is retried until the deadline (paper 002's fallback), each planner growing its own tree on from
-where its last attempt stopped (anew after a slip); the path is then shortcut, with the same checker, within the
-same deadline.
+Validity comes from a collision `Checker`: single states through a Python callback, and whole motions through a
+`MotionValidator` subclass that checks every sampled configuration of a segment in one call. A failed attempt is
+retried until the deadline (the fallback of the KineoWorks reactive-planning paper), each planner growing its own
+tree on from where its last attempt stopped (anew after a slip); the path is then shortcut, with the same checker,
+within the same deadline.
 """
 
 from __future__ import annotations
@@ -22,11 +22,13 @@ from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
 
+from ..collision.checker import Checker, ExactChecker
+from ..collision.exact import CollisionChecker
+from ..collision.fast import FastChecker
+from ..collision.paddings import Paddings, within_padding
 from ..errors import InvalidInputError
-from ..world.collision import CollisionChecker
-from ..world.layered import FastChecker
-from ..world.paddings import Paddings, within_padding
-from ..world.transforms import make_transform
+from ..model.transforms import make_transform
+from ..sections import CollisionLayer
 from .heading import check_heading, lead_along
 from .ik import IKError, solve_ik
 from .shortcut import shortcut
@@ -91,20 +93,63 @@ class _Attempt:
             self.ptc.terminate()
 
 
-class _BatchMotionValidator(ob.MotionValidator):
-    """Checks a whole straight motion in one batch of the checker."""
+class Search:
+    """What one plan's search asks and remembers: the checker of its padding, the resolution [m] its motions are
+    checked at, the configurations it found free in its world (not checked again as a motion's ends) and the budget
+    of the attempt that runs."""
 
-    def __init__(self, si, planner: Planner):
+    def __init__(self, checker: Checker, resolution: float, free: set[bytes] | None = None):
+        self.checker, self.resolution, self.free = checker, resolution, free
+        self.attempt: _Attempt | None = None
+
+    def count(self) -> None:
+        if self.attempt is not None:
+            self.attempt.count()
+
+    def state_ok(self, q: np.ndarray) -> bool:
+        ok = self.checker.motion_valid(q, q, 0.0)  # the layer's compiled call without a check's input checks
+        if ok and self.free is not None:
+            self.free.add(q.tobytes())
+        return ok
+
+    def motion_ok(self, a: np.ndarray, b: np.ndarray, resolution: float | None = None) -> bool:
+        """The straight motion a -> b, checked every `resolution` [m] (None: the checker's path resolution)."""
+        free, res = self.free, self.checker.path_resolution if resolution is None else resolution
+        if free is None:  # the compiled call, without a path check's input checks
+            return self.checker.motion_valid(a, b, res)
+        ka, kb = a.tobytes(), b.tobytes()
+        given = int(ka in free) | 2 * int(kb in free)  # ends found free before are not checked again
+        ok = self.checker.motion_valid(a, b, res, given)
+        if ok and given != 3:
+            free.update((ka, kb))
+        return ok
+
+
+class _Searching:
+    """The search OMPL's callbacks serve: OMPL holds the callbacks and they hold this, not the planner."""
+
+    def __init__(self, search: Search, dof: int):
+        self.search, self.joints = search, range(dof)
+
+    def q(self, s) -> np.ndarray:
+        return np.fromiter(map(s.__getitem__, self.joints), np.float64, len(self.joints))
+
+    def state_valid(self, s) -> bool:
+        self.search.count()
+        return self.search.state_ok(self.q(s))
+
+
+class _BatchMotionValidator(ob.MotionValidator):
+    """Checks a whole straight motion in one call of the search's checker."""
+
+    def __init__(self, si, searching: _Searching):
         super().__init__(si)
-        self._planner = weakref.ref(planner)  # OMPL holds this object: a strong reference would be a cycle
+        self.searching = searching
 
     def checkMotion(self, s1, s2) -> bool:
-        p = self._planner()
-        if p is None:
-            return False
-        if p._attempt is not None:
-            p._attempt.count()
-        return p._motion_ok(p._to_np(s1), p._to_np(s2), p._search_resolution)
+        search = self.searching.search
+        search.count()
+        return search.motion_ok(self.searching.q(s1), self.searching.q(s2), search.resolution)
 
 
 _LIVE: weakref.WeakSet = weakref.WeakSet()
@@ -114,14 +159,14 @@ _LIVE: weakref.WeakSet = weakref.WeakSet()
 def _release_ompl() -> None:
     # nanobind reports OMPL objects still alive at exit as leaks: drop them first
     for planner in list(_LIVE):
-        planner.si = planner.space = planner._mv = None
+        planner.close()
 
 
 class Planner:
     """Plans joint-space paths for one robot against the checker's world.
 
     Args:
-        checker: validity of states and motions.
+        checker: validity of states and motions (the exact checker: the last word on every path).
         planner: default OMPL planner name (see PLANNERS).
         attempt_checks: validity checks (states and motions) of the first attempt before retrying (the planner's tree
             grows on), each retry twice as many (counts: with time enough, a seeded plan is the same on any machine;
@@ -131,6 +176,7 @@ class Planner:
         search_coarseness: motions are checked this many times coarser than the checker's path resolution while
             searching, whatever a plan's padding (the result is then checked at the padding's resolution; if a thin
             obstacle slipped through, every tree is searched anew, SLIP_REFINE times finer each time).
+        collision_layer: what the search asks first (the fast layer, or FCL alone).
         retry_planner: the default planner's retries alternate with this one (None: the same planner again).
         seed: every plan starts from this seed (OMPL's generator and the shortcutting): the same problem gives the
             same path, alone or after others. None: fresh randomness. OMPL's generator is per process: planners
@@ -151,16 +197,18 @@ class Planner:
         orientation_tolerance: float = 0.02,
         search_coarseness: float = 4.0,
         seed: int | None = None,
-        collision_layer: str = "spheres",
+        collision_layer: CollisionLayer | str = CollisionLayer.SPHERES,
         retry_planner: str | None = None,
         clock: Callable[[], float] = time.perf_counter,
     ):
         self.clock = clock
-        if collision_layer not in ("spheres", "fcl"):
-            raise InvalidInputError(f"collision_layer must be 'spheres' or 'fcl', got {collision_layer!r}")
-        self.layer = collision_layer
+        try:
+            self.layer = CollisionLayer(collision_layer)
+        except ValueError:
+            names = " or ".join(repr(v.value) for v in CollisionLayer)
+            raise InvalidInputError(f"collision_layer must be {names}, got {collision_layer!r}") from None
         self.exact = checker  # FCL: the last word on every path a plan returns
-        self.checker = self._layered(checker)
+        self.checker: Checker = self._layered(checker)
         self.paddings = Paddings(checker, self._layered)
         self.robot = checker.robot
         planner_class(planner)  # raises on an unknown name
@@ -171,9 +219,7 @@ class Planner:
         if attempt_checks < 1 or shortcut_tries < 0:
             raise InvalidInputError("attempt_checks must be >= 1 and shortcut_tries >= 0")
         self.attempt_checks = int(attempt_checks)
-        self._attempt: _Attempt | None = None
-        self._free: set[bytes] | None = None  # during a plan: configurations found free in its world
-        self._last = None  # the checker of the last plan's padding
+        self._last: Checker | None = None  # the checker of the last plan's padding
         self.shortcut_tries = int(shortcut_tries)
         self.planner_range = planner_range
         self.ik_restarts = ik_restarts
@@ -183,9 +229,7 @@ class Planner:
         self._rng = np.random.default_rng(seed)
         # motions are checked coarser while searching; the found path is checked at the full resolution
         self.search_coarseness = float(search_coarseness)
-        self._search_resolution = self.search_coarseness * checker.path_resolution
         dof = self.robot.dof
-        self._joints = range(dof)
         self.space = ob.RealVectorStateSpace(dof)
         bounds = ob.RealVectorBounds(dof)
         for i in range(dof):
@@ -193,31 +237,16 @@ class Planner:
             bounds.setHigh(i, float(self.robot.limits.upper[i]))
         self.space.setBounds(bounds)
         self.si = ob.SpaceInformation(self.space)
-        ref = weakref.ref(self)
-
-        def state_valid(s) -> bool:
-            p = ref()
-            if p is None:
-                return False
-            if p._attempt is not None:
-                p._attempt.count()
-            q, c = p._to_np(s), p.checker
-            if not isinstance(c, FastChecker):
-                return c.is_valid(q)
-            ok = c.motion_valid(q, q, 0.0)  # the layer's compiled call without a check's input checks
-            if ok and p._free is not None:
-                p._free.add(q.tobytes())
-            return ok
-
-        self.si.setStateValidityChecker(state_valid)
-        self._mv = _BatchMotionValidator(self.si, self)
-        self.si.setMotionValidator(self._mv)
+        # between plans the callbacks ask the planner's own checker (OMPL may look at states while setting up)
+        self._searching = _Searching(Search(self.checker, self._coarse_resolution()), dof)
+        self.si.setStateValidityChecker(self._searching.state_valid)
+        self._motion_validator = _BatchMotionValidator(self.si, self._searching)
+        self.si.setMotionValidator(self._motion_validator)
         if self.seed is not None:  # the space's default projection (KPIECE's) is drawn here: the same for a seed
             _seed_ompl(self.seed)
         self.si.setup()
         _LIVE.add(self)
-        if self.layer == "spheres":  # compile and build the layer now, not inside the first plan's deadline
-            self.checker.warm()
+        self.checker.warm()  # compile and build the layer now, not inside the first plan's deadline
 
     @classmethod
     def from_config(cls, checker: CollisionChecker, cfg, seed: int | None = None) -> Planner:
@@ -236,29 +265,20 @@ class Planner:
             retry_planner=cfg.retry_planner,
         )
 
-    def _layered(self, checker: CollisionChecker):
-        """The checker the search asks: the sphere layer in front of FCL, or FCL alone."""
-        return FastChecker(checker) if self.layer == "spheres" else checker
+    def close(self) -> None:
+        """Drop the OMPL objects (before the interpreter's exit: nanobind reports live ones as leaks)."""
+        self.si = self.space = self._motion_validator = None
 
-    def _motion_ok(self, a: np.ndarray, b: np.ndarray, resolution: float | None = None) -> bool:
-        """The straight motion a -> b, checked every `resolution` [m] (None: the checker's path resolution)."""
-        c = self.checker
-        if not isinstance(c, FastChecker):
-            return c.path_valid(np.array([a, b]), resolution)
-        free, res = self._free, c.path_resolution if resolution is None else resolution
-        if free is None:  # the compiled call, without a path check's input checks
-            return c.motion_valid(a, b, res)
-        ka, kb = a.tobytes(), b.tobytes()
-        given = int(ka in free) | 2 * int(kb in free)  # ends found free before are not checked again
-        ok = c.motion_valid(a, b, res, given)
-        if ok and given != 3:
-            free.update((ka, kb))
-        return ok
+    def _layered(self, checker: CollisionChecker) -> Checker:
+        """The checker the search asks: the fast layer in front of FCL, or FCL alone."""
+        return FastChecker(checker) if self.layer is CollisionLayer.SPHERES else checker
+
+    def _coarse_resolution(self) -> float:
+        """The search's resolution [m]: the configured checker's, coarsened (a small padding only tightens the final
+        check)."""
+        return self.search_coarseness * self.exact.path_resolution
 
     # ------------------------------------------------------------------ conversions
-    def _to_np(self, s) -> np.ndarray:
-        return np.fromiter(map(s.__getitem__, self._joints), np.float64, len(self._joints))
-
     def _alloc(self, q: np.ndarray):
         st = self.space.allocState()
         for i, v in enumerate(q):
@@ -269,7 +289,10 @@ class Planner:
     def resolve_goal(self, start: np.ndarray, goal, padding: float | None = None, lazy: bool = False) -> np.ndarray:
         """Goal configuration: a JointGoal's q (checked), or IK of a PoseGoal nearest the start; `padding` [m]
         against known objects (None: this planner's). `lazy`: a joint goal is checked by FCL, not the layer."""
-        r, checker = self.robot, self.paddings.get(padding, self.checker)
+        return self._resolve_goal(start, goal, self.paddings.get(padding, self.checker), lazy)
+
+    def _resolve_goal(self, start: np.ndarray, goal, checker: Checker, lazy: bool) -> np.ndarray:
+        r = self.robot
         if isinstance(goal, PoseGoal):
             try:
                 T = make_transform(goal.position, goal.quat_xyzw)
@@ -298,7 +321,7 @@ class Planner:
             raise GoalInvalid(str(err)) from None
         if q.ndim != 1:
             raise GoalInvalid(f"goal must be one configuration of {r.dof} joints, got shape {q.shape}")
-        checker = checker.checker if lazy and isinstance(checker, FastChecker) else checker
+        checker = checker.exact if lazy else checker
         contact = None if checker.is_valid(q) else checker.check(q)  # the layer first: FCL's tree only if needed
         if contact is not None:
             raise GoalInvalid(within_padding(checker, q, contact, "goal"), contact)
@@ -326,22 +349,22 @@ class Planner:
         path that would start against it starts with a short step along it (planning/heading.py).
         """
         heading = check_heading(heading, self.robot)
-        checker = self.paddings.get(padding, self.checker)
-        base, self.checker = self.checker, checker  # the callbacks read self.checker
-        self._last = checker
+        search = Search(self.paddings.get(padding, self.checker), self._coarse_resolution())
+        self._last = search.checker
+        self._searching.search = search  # what OMPL's callbacks ask, for this plan
         try:
-            return self._plan(start, goal, planner, deadline, cancel, heading)
+            return self._plan(search, start, goal, planner, deadline, cancel, heading)
         finally:
-            self.checker, self._free = base, None
+            self._searching.search = Search(self.checker, self._coarse_resolution())
 
     def prepare(self) -> None:
         """The search's layer of the world as it is now (this planner's padding, its last plan's), built between jobs:
         a plan after an edit builds none unless it searches, and a replan must not wait for it."""
         for c in (self.checker, self._last):
-            if isinstance(c, FastChecker) and not c.ready():
-                c.motion()
+            if c is not None and not c.ready():
+                c.prepare()
 
-    def _plan(self, start, goal, planner: str | None, deadline: float, cancel, heading) -> PlanResult:
+    def _plan(self, search: Search, start, goal, planner: str | None, deadline: float, cancel, heading) -> PlanResult:
         clock = self.clock
         t_begin = clock()
         if self.seed is not None:
@@ -358,28 +381,26 @@ class Planner:
             raise StartInvalid(str(err)) from None
         start = np.clip(start, r.limits.lower, r.limits.upper)  # a measured arm settles a hair past a limit
         # after an edit of the world, FCL checks the ends and the straight line: the layer is built only for a search
-        lazy = isinstance(self.checker, FastChecker) and not self.checker.ready()
-        first = self.checker.checker if lazy else self.checker
+        lazy = not search.checker.ready()
+        first = search.checker.exact if lazy else search.checker
         contact = None if first.is_valid(start) else first.check(start)
         if contact is not None:
-            raise StartInvalid(within_padding(self.checker, start, contact, "start"), contact)
-        q_goal = self.resolve_goal(start, goal, lazy=lazy)
-        self._free = {start.tobytes(), np.asarray(q_goal, np.float64).tobytes()}
+            raise StartInvalid(within_padding(search.checker, start, contact, "start"), contact)
+        q_goal = self._resolve_goal(start, goal, search.checker, lazy)
+        search.free = {start.tobytes(), np.asarray(q_goal, np.float64).tobytes()}
         t_end = t_begin + deadline * (1.0 - FINAL_CHECKS_SHARE)
         t_stop = t_begin + deadline * (1.0 + FINAL_CHECKS_SHARE)  # the promise: back by then, or failed
 
         def exact(W: np.ndarray) -> bool:
-            return self._exact_clear(W, t_stop, t_begin, deadline)
+            return self._exact_clear(search.checker.exact, W, t_stop, t_begin, deadline)
 
         def led(W: np.ndarray) -> np.ndarray:  # a replan's path turned to start along the motion, if time is left
             return W if heading is None or clock() > t_stop else lead_along(W, heading, exact)
 
-        # the search's resolution is the configured checker's, coarsened: a small padding only tightens the final check
-        fine = self.checker.path_resolution
-        self._search_resolution = self.search_coarseness * self.paddings.checker.path_resolution
+        fine = search.checker.path_resolution
         direct = np.array([start, q_goal])
-        res = self._search_resolution
-        straight = first.path_valid(direct, res) if lazy else self._motion_ok(start, q_goal, res)
+        res = search.resolution
+        straight = first.path_valid(direct, res) if lazy else search.motion_ok(start, q_goal, res)
         if straight and exact(direct):
             W = led(direct)
             return PlanResult(W, q_goal, name, 0, 0.0, 0.0, clock() - t_begin, direct=True, raw_waypoints=2)
@@ -391,7 +412,7 @@ class Planner:
         attempts, used, algos = 0, None, {}
         pdef = ss.getProblemDefinition()
         W = raw_path = None
-        simplify_time = 0.0
+        simplify_time, slips = 0.0, 0
         while W is None:
             remaining = t_end - clock()
             if remaining <= 0 or (cancel is not None and cancel.is_set()):
@@ -411,18 +432,19 @@ class Planner:
                 ob.timedPlannerTerminationCondition(remaining),  # the deadline, the only clock in a plan
             )
             # each retry may check twice as much: hard problems get big trees, easy ones stay quick
-            self._attempt = _Attempt(ptc, self.attempt_checks << min(attempts - 1, 12), cancel)
+            search.attempt = _Attempt(ptc, self.attempt_checks << min(attempts - 1, 12), cancel)
             try:
                 status = ss.solve(ptc)
             finally:
-                self._attempt = None
+                search.attempt = None
             if bool(status) and pdef.hasExactSolution():
                 raw_path = self._solution(ss)
                 t_simp = clock()
-                W = self.simplify(raw_path, self._search_resolution, t_end, exact)
+                W = self._simplify(search, raw_path, search.resolution, t_end, exact)
                 simplify_time += clock() - t_simp
                 if W is None:  # a thin obstacle slipped between the coarse search checks: search anew, finer
-                    self._search_resolution = max(fine, self._search_resolution / SLIP_REFINE)
+                    slips += 1
+                    search.resolution = max(fine, search.resolution / SLIP_REFINE)
                     for grown in algos.values():  # motions checked as coarsely: kept, they give slipped paths again
                         grown.clear()
             if W is None:
@@ -438,30 +460,43 @@ class Planner:
         W = led(W)
         total = clock() - t_begin
         name = next(k for k, v in PLANNERS.items() if v is used)
-        return PlanResult(W, q_goal, name, attempts, search_time, simplify_time, total, raw_waypoints=len(raw_path))
+        return PlanResult(
+            W, q_goal, name, attempts, search_time, simplify_time, total, raw_waypoints=len(raw_path), slips=slips
+        )
 
     def simplify(
-        self, raw: np.ndarray, resolution: float, t_end: float = math.inf, exact: Callable | None = None
+        self,
+        raw: np.ndarray,
+        resolution: float,
+        t_end: float = math.inf,
+        exact: Callable | None = None,
+        padding: float | None = None,
     ) -> np.ndarray | None:
         """A found path shortcut with motions checked every `resolution` [m] (the search's), then checked at the full
         path resolution by `exact` (a path -> bool; None: the checker's `path_valid`); if a shortcut slipped through a
-        thin obstacle, shortcut at the full resolution. None: `raw` itself slipped through one."""
-        exact = exact or self.checker.path_valid
-        W = self.shortcut(raw, t_end, resolution)
+        thin obstacle, shortcut at the full resolution. None: `raw` itself slipped through one. `padding` [m]: from
+        known objects (None: this planner's)."""
+        search = Search(self.paddings.get(padding, self.checker), resolution)
+        return self._simplify(search, raw, resolution, t_end, exact)
+
+    def _simplify(
+        self, search: Search, raw: np.ndarray, resolution: float, t_end: float, exact: Callable | None
+    ) -> np.ndarray | None:
+        exact = exact or search.checker.path_valid
+        W = self._shortcut(search, raw, t_end, resolution)
         if exact(W):
             return W
-        if not self.checker.path_valid(raw):
+        if not search.checker.path_valid(raw):
             return None
-        W = self.shortcut(raw, t_end)
+        W = self._shortcut(search, raw, t_end, None)
         if not exact(W):  # every segment was cleared at the full resolution: the layers disagree with FCL
             log.error("the sphere layer cleared a path FCL refuses: a bug, please report it with the scene")
             raise NoSolution("the path found collides by FCL's check (sphere layer disagreement): plan again")
         return W
 
-    def _exact_clear(self, W: np.ndarray, t_stop: float, t_begin: float, deadline: float) -> bool:
+    def _exact_clear(self, exact: ExactChecker, W: np.ndarray, t_stop: float, t_begin: float, deadline: float) -> bool:
         """FCL's own check of a path at path resolution (the last word on every path a plan returns; the layers in
         front of it only ever clear), a chunk at a time: past `t_stop` the plan fails rather than return late."""
-        exact = self.checker.checker if isinstance(self.checker, FastChecker) else self.checker
         Q, _ = exact.interpolate(W)
         i = 0
         while i < len(Q):
@@ -479,19 +514,26 @@ class Planner:
 
     def _solution(self, ss) -> np.ndarray:
         path = ss.getSolutionPath()
-        return np.array([self._to_np(path.getState(i)) for i in range(path.getStateCount())])
+        return np.array([self._searching.q(path.getState(i)) for i in range(path.getStateCount())])
 
     # ------------------------------------------------------------------ simplification
-    def shortcut(self, W: np.ndarray, t_end: float = math.inf, resolution: float | None = None) -> np.ndarray:
+    def shortcut(
+        self, W: np.ndarray, t_end: float = math.inf, resolution: float | None = None, padding: float | None = None
+    ) -> np.ndarray:
         """Fewer, shorter segments (planning/shortcut.py): up to `shortcut_tries` random shortcuts between waypoint
-        skips, each checked every `resolution` [m] (None: the checker's path resolution).
+        skips, each checked every `resolution` [m] (None: the checker's path resolution), `padding` [m] from known
+        objects (None: this planner's).
 
         Bounded by counts; `t_end` (a time of `clock`, the plan's deadline) may only cut it short. A coarser
         `resolution` leaves the kept pieces of cut segments unchecked: `simplify` checks the result finer.
         """
+        search = Search(self.paddings.get(padding, self.checker), self._coarse_resolution())
+        return self._shortcut(search, W, t_end, resolution)
+
+    def _shortcut(self, search: Search, W: np.ndarray, t_end: float, resolution: float | None) -> np.ndarray:
         return shortcut(
             W,
-            lambda a, b: self._motion_ok(a, b, resolution),
+            lambda a, b: search.motion_ok(a, b, resolution),
             self._rng,
             tries=self.shortcut_tries,
             t_end=t_end,

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..world.geometry import Shape, shape_from_dict, shape_to_dict
+from ..model.geometry import Shape, shape_from_dict, shape_to_dict
 
 log = logging.getLogger(__name__)
 

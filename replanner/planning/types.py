@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..collision.exact import Contact
 from ..errors import InvalidInputError, ReplannerError
-from ..world.collision import Contact
 
 
 class PlanningError(ReplannerError):
@@ -79,3 +79,4 @@ class PlanResult:
     total_time: float
     direct: bool = False  # the straight line was free: no search needed
     raw_waypoints: int = 0
+    slips: int = 0  # paths the coarse search found that FCL refused (each one grew the trees anew, finer)

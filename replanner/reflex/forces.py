@@ -19,7 +19,7 @@ import numba
 import numpy as np
 import trimesh
 
-from ..world.robot import RobotModel
+from ..model.robot import RobotModel
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from ..world.robot import RobotModel
+from ..model.robot import RobotModel
 
 
 @dataclass(frozen=True)

@@ -18,10 +18,10 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from ..model.robot import RobotModel
 from ..sections import ReflexConfig
 from ..trajectory import Trajectory, progress_along
 from ..world.occupancy import unique_keys, voxel_centers, voxel_keys
-from ..world.robot import RobotModel
 from .forces import ForceField, VertexModel
 from .kernels import AvoidanceKernels, KernelSpec, OccupancyGrid
 

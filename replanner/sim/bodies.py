@@ -8,7 +8,7 @@ import numpy as np
 import pybullet as pb
 from scipy.spatial.transform import Rotation
 
-from ..world.transforms import make_transform, matrix_to_quat
+from ..model.transforms import make_transform, matrix_to_quat
 
 PARK = (0.0, 0.0, -5.0)  # where absent bodies wait: under the floor, out of every camera's view
 CONTACT_DEPTH = 0.001  # pybullet reports distances up to its 1 mm collision margin short: deeper counts

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
-from ..world.geometry import Box
-from ..world.robot import RobotModel
+from ..model.geometry import Box
+from ..model.robot import RobotModel
+from ..model.transforms import make_transform
 from ..world.scene import scene_from_config
-from ..world.transforms import make_transform
 from .bodies import CONTACT_DEPTH, PARK, create_capsule, set_pose
 from .config import CellConfig, OperatorConfig
 from .scene import PyBulletScene

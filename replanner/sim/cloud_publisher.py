@@ -12,11 +12,11 @@ import numpy as np
 
 from ..config import ReplannerConfig
 from ..errors import ConfigError, InvalidInputError
+from ..model.geometry import Box, Shape
+from ..model.robot import RobotModel
+from ..model.transforms import make_transform
 from ..perception import CameraModel, pose_from_config
 from ..transport import messages as m
-from ..world.geometry import Box, Shape
-from ..world.robot import RobotModel
-from ..world.transforms import make_transform
 from .bodies import PARK, create_capsule, pose_from_list, set_pose
 from .camera import PyBulletDepthCamera
 from .config import CellConfig, SimConfig

@@ -10,8 +10,8 @@ import numpy as np
 import pybullet as pb
 
 from ..errors import InvalidInputError
-from ..world.geometry import Box
-from ..world.transforms import make_transform
+from ..model.geometry import Box
+from ..model.transforms import make_transform
 from .bodies import pose_list, set_pose
 from .cell import Cell
 from .config import TaskConfig

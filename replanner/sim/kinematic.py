@@ -15,13 +15,14 @@ import threading
 import time
 
 import numpy as np
+import pybullet as pb
 
 from ..config import ReplannerConfig
 from ..control import KinematicDriver
+from ..model.geometry import Shape
+from ..model.robot import RobotModel
 from ..perception import CameraModel, CloudFrame, CloudRejected, pose_from_config
 from ..stack import build_stack
-from ..world.geometry import Shape
-from ..world.robot import RobotModel
 from .camera import PyBulletDepthCamera
 from .scene import PyBulletScene
 
@@ -98,6 +99,15 @@ class KinematicSim:
         with self._pb_lock:
             self.scene.remove(name)
         self._tell("remove", name)
+
+    def closest_points(self, q, name: str, max_distance: float) -> list:
+        """Ground truth: pybullet's closest points between the arm at q and obstacle `name`, within `max_distance` [m]
+        (pybullet's tuples: the distance at [8])."""
+        with self._pb_lock:
+            self.scene.set_q(q)
+            return pb.getClosestPoints(
+                self.scene.body, self.scene.objects[name], max_distance, physicsClientId=self.scene.client
+            )
 
     # ------------------------------------------------------------------ running
     def start(self) -> KinematicSim:

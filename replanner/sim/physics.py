@@ -24,9 +24,9 @@ import pybullet as pb
 
 from ..control.timeline import Timeline
 from ..errors import InvalidInputError, ReplannerError
+from ..model.robot import RobotModel
 from ..trajectory import SampledTrajectory
 from ..transport import messages as m
-from ..world.robot import RobotModel
 from .bodies import pose_list
 from .cell import Cell, ShadowWorld
 from .config import CellConfig

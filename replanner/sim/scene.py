@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 
-from ..world.geometry import Box, Cylinder, Shape, Sphere
-from ..world.robot import RobotModel
-from ..world.transforms import make_transform, matrix_to_quat
+from ..model.geometry import Box, Cylinder, Shape, Sphere
+from ..model.robot import RobotModel
+from ..model.transforms import make_transform, matrix_to_quat
 
 
 def room_geometry() -> list[tuple[str, Shape, np.ndarray]]:

@@ -11,10 +11,10 @@ import numpy as np
 from ..config import ReplannerConfig
 from ..control import JointState, Timeline
 from ..errors import InvalidInputError
+from ..model.geometry import Shape
+from ..model.robot import RobotModel
 from ..perception import CameraModel, CloudFrame, CloudRejected, pose_from_config
 from ..stack import build_stack
-from ..world.geometry import Shape
-from ..world.robot import RobotModel
 from .camera import PyBulletDepthCamera
 from .scene import PyBulletScene
 

@@ -24,6 +24,7 @@ class Piece(ABC):
     """One piece of the curve over local arc parameter x in [0, length]."""
 
     length: float
+    bounds_memo: tuple | None = None  # (limits, the piece's speed bounds): the timing law's, for the last limits
     m: np.ndarray  # (3, dof) bounds of |q'|, |q''|, |q'''| over the piece
 
     @abstractmethod
@@ -87,7 +88,7 @@ def _du(c: np.ndarray, u: np.ndarray, order: int) -> np.ndarray:
 class QuinticPiece(Piece):
     """q(x) = Q(u0 + x / ell), Q a quintic on [0, 1]; this piece covers u in [u0, u1], x in [0, ell (u1 - u0)]."""
 
-    _SAMPLES = 65
+    SAMPLES = 65  # per piece, where its derivatives' peaks are sought
 
     def __init__(self, coeffs: np.ndarray, ell: float, u0: float = 0.0, u1: float = 1.0, m: np.ndarray | None = None):
         self.c = coeffs
@@ -121,7 +122,7 @@ def quintic_bounds(c: np.ndarray, ell, edges: np.ndarray) -> np.ndarray:
     lead, dof = c.shape[:-2], c.shape[-1]
     flat = writable(np.reshape(c, (-1, 6, dof)))
     ells = np.array(np.broadcast_to(np.asarray(ell, dtype=float), lead).reshape(-1))  # writable: one compiled kind
-    S = QuinticPiece._SAMPLES
+    S = QuinticPiece.SAMPLES
     peak = quintic_peaks(flat, ells, edges, S, np.empty((len(flat), len(edges) - 1, 4, dof)))
     h = (0.5 / (S - 1) * np.diff(edges))[:, None, None] * ells[:, None, None, None]
     return (peak[..., :3, :] + h * peak[..., 1:, :]).reshape(*lead, len(edges) - 1, 3, dof)

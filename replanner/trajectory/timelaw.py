@@ -47,7 +47,7 @@ def bounds_of(pieces: list[Piece], lim: Limits) -> np.ndarray:
     out = np.empty((len(pieces), 3))
     todo = []
     for i, p in enumerate(pieces):
-        memo = getattr(p, "_bounds_memo", None)
+        memo = p.bounds_memo
         if memo is not None and memo[0] is lim:
             out[i] = memo[1]
         else:
@@ -55,7 +55,7 @@ def bounds_of(pieces: list[Piece], lim: Limits) -> np.ndarray:
     if todo:
         out[todo] = speed_bounds(np.stack([pieces[i].m for i in todo]), lim)
         for i in todo:
-            pieces[i]._bounds_memo = (lim, out[i])
+            pieces[i].bounds_memo = (lim, out[i])
     return out
 
 

@@ -12,8 +12,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..errors import InvalidInputError
-from ..world.geometry import Box, Cylinder, Mesh, Sphere, shape_to_dict
-from ..world.transforms import make_transform
+from ..model.geometry import Box, Cylinder, Mesh, Sphere, shape_to_dict
+from ..model.transforms import make_transform
 from . import trajectory_cdr
 from .cdr import CDR_LE, JOINT_STATE, JOINT_TRAJECTORY, POINT_CLOUD2, make_header, split_time, typestore
 

@@ -151,11 +151,12 @@ class Refusals:
         os.close(w)
         sys.stdout.flush()
         sys.stdout = open(out, "w", buffering=1, closefd=False)  # noqa: SIM115 (the process's stdout, for good)
-        threading.Thread(target=refusals._read, args=(r, out, user is not None), name="refusals", daemon=True).start()
+        threading.Thread(target=refusals.relay, args=(r, out, user is not None), name="refusals", daemon=True).start()
         zenoh.init_log_from_env_or("error")
         return refusals
 
-    def _read(self, r: int, out: int, show: bool) -> None:
+    def relay(self, r: int, out: int, show: bool) -> None:
+        """Read the captured stdout from `r`: note the refusals, pass the rest on to `out` (`show`: refusals too)."""
         with os.fdopen(r, "rb") as pipe:
             for raw in pipe:
                 try:

@@ -17,10 +17,11 @@ from types import MappingProxyType
 import numpy as np
 
 from ..errors import InvalidInputError, UnknownNameError, WorldError
-from .geometry import Shape
+from ..model.geometry import Shape
+from ..model.robot import RobotModel
+from ..model.transforms import check_transform, invert_transform
+from .kernels import warm_up
 from .occupancy import OccupancyMap
-from .robot import RobotModel
-from .transforms import check_transform, invert_transform
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,6 +72,7 @@ class World:
     """
 
     def __init__(self, robot: RobotModel):
+        warm_up()  # the map's kernels compile now, not when the first camera frame arrives mid-motion
         self.robot = robot
         self._lock = threading.Lock()
         self._snap = WorldSnapshot(MappingProxyType({}), MappingProxyType({}), None, 0)
@@ -190,7 +192,7 @@ class World:
         """Drop each support an attached object is now farther than `clearance` [m] from; returns (object, support)."""
         import fcl
 
-        from .geometry import padded_geometry
+        from ..model.geometry import padded_geometry
 
         s = self._snap
         if not any(a.support for a in s.attachments.values()):
@@ -291,8 +293,8 @@ class World:
 
 def scene_from_config(cfg) -> list[tuple[str, Shape, np.ndarray]]:
     """(name, shape, pose) of the config's `scene:` objects."""
-    from .geometry import Box, Cylinder, Sphere
-    from .transforms import make_transform
+    from ..model.geometry import Box, Cylinder, Sphere
+    from ..model.transforms import make_transform
 
     out = []
     for o in cfg.scene:
@@ -308,7 +310,7 @@ def scene_from_config(cfg) -> list[tuple[str, Shape, np.ndarray]]:
 
 def world_boxes(objects) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """World-aligned bounding boxes (lo, hi) of (name, shape, pose) objects."""
-    from .geometry import local_box
+    from ..model.geometry import local_box
 
     out = {}
     for name, shape, pose in objects:
@@ -320,7 +322,7 @@ def world_boxes(objects) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 def top_centers(objects) -> dict[str, np.ndarray]:
     """Centre of the top face of each (name, shape, pose) box, e.g. where a part is set down on a bin's floor."""
-    from .geometry import Box
+    from ..model.geometry import Box
 
     out = {}
     for name, shape, pose in objects:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .kernels import frames_of, kernel_array
+from ..model.kinematics import frames_of, kernel_array
 
 PIECE = 0.15  # [rad] pieces at most this long (summed over joints): the speed bound's change grows with the square
 PIECE_STEPS = 8  # nor shorter than this many steps of the longest reach: each piece rounds its steps up

@@ -12,12 +12,13 @@ import numba
 import numpy as np
 from numba.experimental import structref
 
-from .convex_pass import ConvexPass, _decide_all
-from .kernels import frames_of
+from ...model.kinematics import frames_of
+from ...world.volume import VoxelVolume
+from ..selfclearance import may_collide_row
+from ..sweep import Sweep, sweep
+from .convex import ConvexPass, decide_all
+from .layer import CONTACT, UNSURE, SphereScene, verdicts
 from .layer_args import Unliteral
-from .selfcollision import may_collide_row
-from .sphere_layer import CONTACT, UNSURE, SphereScene, VoxelVolume, verdicts
-from .sweep import Sweep, sweep
 
 STRIDE = 8  # every 8th configuration first: a contact is usually found early
 AHEAD = 0.02  # [m] the margin of an anchor's check: free with it, its neighbours within that travel are too
@@ -112,7 +113,7 @@ def _decided_bound(a, b, resolution, ahead, given, m):
     for i in range(u):
         frames_of(Q, unsure[i], L.Fj, L.prismatic, L.joints, L.parents, frames, i)
     out = np.zeros(u, np.int8)
-    _decide_all(
+    decide_all(
         frames, np.arange(u), out, True, m.P, m.D, m.pfirst, m.dfirst, m.supported, m.env_pad, m.self_pad, m.map_pad,
         m.ob_R, m.ob_t, m.cpair_a, m.cpair_b, m.hv_first, m.hv_nb, m.hv_start, L,
     )  # fmt: skip

@@ -9,18 +9,16 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .collision_scene import CollisionScene
-from .geometry import Box, ConvexHull, Mesh, padding_directions
+from ...model.geometry import Box, ConvexHull, Mesh, padding_directions
+from ...world.volume import ball_in_map, box_sum, map_box
+from ..hulls import edge_graph
+from ..scene import CollisionScene
 from .gjk import APART, POINTS, TOUCH, decide
-from .hull_graph import edge_graph
-from .sphere_layer import (
+from .layer import (
     SphereScene,
-    _box_sum,
-    _place,
-    ball_in_map,
     ball_near_box,
-    map_box,
     pair_grow,
+    place_points,
     primitive_distance,
     spheres_meet_body,
     spheres_meet_primitive,
@@ -73,7 +71,7 @@ def decide_batch(
     """Verdicts (len(idx),) on configurations frames[idx]: 1 free, -1 in contact, 0 FCL's to decide. `stop`:
     return at the first contact (the rest stay 0)."""
     out = np.zeros(len(idx), np.int8)
-    _decide_all(
+    decide_all(
         np.ascontiguousarray(frames), np.asarray(idx, np.int64), out, stop, cp.P, cp.D, cp.pfirst, cp.dfirst,
         cp.supported, layer.env_pad, layer.self_pad, layer.map_pad, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b,
         cp.hv_first, cp.hv_nb, cp.hv_start, layer.kernel_args(vol),
@@ -141,7 +139,7 @@ def ball_meets_cells(sat, csat, key_min, inv_res, x, y, z, r) -> bool:
     while top > 0:
         top -= 1
         a0, a1, a2, b0, b1, b2 = stack[top]
-        if a0 > b0 or a1 > b1 or a2 > b2 or _box_sum(sat, a0, a1, a2, b0 + 1, b1 + 1, b2 + 1) == 0:
+        if a0 > b0 or a1 > b1 or a2 > b2 or box_sum(sat, a0, a1, a2, b0 + 1, b1 + 1, b2 + 1) == 0:
             continue
         # the box's nearest point to the centre: farther than r, nothing in it meets the ball
         lo0, lo1, lo2 = (a0 + key_min[0]) * c, (a1 + key_min[1]) * c, (a2 + key_min[2]) * c
@@ -177,7 +175,7 @@ def _merge(verdict, r):
 
 
 @numba.njit(cache=True, nogil=True)
-def _decide_all(
+def decide_all(
     frames, idx, out, stop, P, D, pfirst, dfirst, supported, env_pad, self_pad, map_pad, ob_R, ob_t, pair_a, pair_b,
     hv_first, hv_nb, hv_start, L,
 ):  # fmt: skip
@@ -197,7 +195,7 @@ def _decide_all(
     for j in range(idx.shape[0]):
         n = idx[j]
         for b in range(B):
-            _place(frames, n, ball_slot[b], ball_c, b, b + 1, BC)
+            place_points(frames, n, ball_slot[b], ball_c, b, b + 1, BC)
             placed[b] = False
         verdict = APART
         for b in range(B):
@@ -210,7 +208,7 @@ def _decide_all(
                 if primitive_distance(ob_inv, o, ob_kind[o], ob_dim, x, y, z) > ball_r[b] + eg:
                     continue
                 if not placed[b]:
-                    _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
+                    place_points(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
                     placed[b] = True
                 if not spheres_meet_primitive(C, rad, first[b], first[b + 1], eg, ob_inv, o, ob_kind[o], ob_dim):
                     continue  # the covering spheres are clear of it: so is the body
@@ -232,7 +230,7 @@ def _decide_all(
             if verdict == APART and octree_mask[b] and ball_near_box(m0, m1, m2, M0, M1, M2, x, y, z, ball_r[b] + mg):
                 if ball_in_map(sat, csat, key_min, inv_res, x, y, z, ball_r[b] + mg):
                     if not placed[b]:
-                        _place(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
+                        place_points(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
                         placed[b] = True
                     if fine_meets_map(
                         F, C, rad, first[b], first[b + 1], mg, fine_local, fine_rad, fine_ptr, fine_idx, sat, csat,
@@ -251,7 +249,7 @@ def _decide_all(
                     continue
                 for bo in (a, b):
                     if not placed[bo]:
-                        _place(frames, n, ball_slot[bo], local, first[bo], first[bo + 1], C)
+                        place_points(frames, n, ball_slot[bo], local, first[bo], first[bo + 1], C)
                         placed[bo] = True
                 if not spheres_meet_body(
                     C, rad, first[a], first[a + 1], first[b], first[b + 1], BC, a, b, ball_r, sg, sel

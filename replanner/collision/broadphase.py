@@ -9,9 +9,11 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .hull_graph import climb
-from .kernels import box_centre, box_hits_table, boxes_apart, frames_of, place_body, world_box
-from .selfcollision import pair_maybe
+from ..model.kinematics import frames_of
+from ..world.kernels import box_hits_table
+from .boxes import box_centre, boxes_apart, place_body, world_box
+from .hulls import climb
+from .selfclearance import pair_maybe
 
 MAP, OBJECT, SELF = 0, 1, 2  # what a test's second part is: the occupancy map, a static object, another body
 GAP = 1e-9  # [m] a hull parted from a box by less is left to FCL

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .hull_graph import climb
+from ..hulls import climb
 
 APART, TOUCH, BAND = 1, -1, 0  # what `decide` says of two shapes
 POINTS, BOX, BALL, CYLINDER = 3, 0, 1, 2  # shape kinds (the primitives' numbers are sphere_layer's)

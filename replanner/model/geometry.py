@@ -76,7 +76,7 @@ class Mesh:
         return self._hash
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, Mesh) and self._hash == other._hash
+        return isinstance(other, Mesh) and hash(self) == hash(other)
 
 
 @dataclass(frozen=True, eq=False)

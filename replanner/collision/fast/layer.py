@@ -15,18 +15,17 @@ import math
 import numba
 import numpy as np
 
-from .collision_scene import CollisionScene
-from .geometry import Box, Cylinder, Sphere, padding_directions
-from .kernels import frames_of, kernel_array, key_bounds, summed_volume
+from ...model.geometry import Box, Cylinder, Sphere, padding_directions
+from ...model.kinematics import frames_of, kernel_array
+from ...world.scene import WorldSnapshot
+from ...world.volume import VoxelVolume, ball_in_map, map_box
+from ..scene import CollisionScene
+from ..selfclearance import may_collide_row
 from .layer_args import LayerArgs, layer_args
-from .occupancy import OccupancyMap
-from .scene import WorldSnapshot
-from .selfcollision import may_collide_row
 from .spheres import cover, refined
 
 BOX, BALL, CYLINDER = 0, 1, 2
 CONTACT, UNSURE, FREE = -1, 0, 1  # what `SphereScene.classify` says of a configuration
-CBLOCK = 4  # cells a side of a coarse block: a 2 m map at 2 cm is 7,000 blocks, 28 kB in cache
 
 
 def _grow_factor(shape, polytope: float) -> float:
@@ -170,94 +169,6 @@ class SphereScene:
         return args
 
 
-class VoxelVolume:
-    """The occupancy map as a summed-volume table over its voxels' bounding box: how many cells touch a box, in
-    eight lookups. Cells are voxels merged `f` to an edge so the table stays under `MAX_CELLS` (a cell counts when
-    any of its voxels is occupied: coarser is only more conservative). A second, coarse table over blocks of
-    `CBLOCK` cells a side stays in cache and answers most boxes alone (`csat`)."""
-
-    EMPTY: VoxelVolume
-    MAX_CELLS = 1 << 19  # 2 MB of int32: a 2 m map at 1 cm merges 3x3x3 voxels, built in a few ms
-
-    def __init__(self, keys: np.ndarray, resolution: float, bounds: tuple[np.ndarray, np.ndarray] | None = None):
-        keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
-        if not len(keys):
-            self.inv_res, self.key_min, self.whole = 1.0 / resolution, np.zeros(3, np.int64), True
-            self.sat = self.csat = np.zeros((1, 1, 1), np.int32)
-            return
-        lo, hi = key_bounds(np.ascontiguousarray(keys)) if bounds is None else bounds  # keys' least and greatest
-        span = hi - lo + 2
-        f = 1
-        while np.prod(-(-span // f) + 1) > self.MAX_CELLS:
-            f += 1
-        keys = keys // f
-        self.inv_res = 1.0 / (resolution * f)
-        self.whole = f == 1  # a cell is one voxel: a ball that meets an occupied cell meets a voxel
-        self.key_min = lo // f  # floor division keeps the order: the merged keys' least and greatest
-        n = hi // f - self.key_min + 1
-        self.sat = np.zeros(tuple(n + 1), np.int32)
-        self.csat = np.zeros(tuple(-(-n // CBLOCK) + 1), np.int32)
-        _summed_volumes(keys - self.key_min + 1, self.sat, self.csat)  # a replan's first check waits for it
-
-    @classmethod
-    def of(cls, occ: OccupancyMap | None) -> VoxelVolume:
-        return cls.EMPTY if occ is None or not len(occ) else cls(occ.keys, occ.resolution, occ.key_bounds)
-
-    def count(self, lo, hi) -> int:
-        """Cells with an occupied voxel that the box [lo, hi] [m] overlaps (0 when it overlaps none)."""
-        return int(_voxels_in(self.sat, self.csat, self.key_min, self.inv_res, *map(float, lo), *map(float, hi)))
-
-
-VoxelVolume.EMPTY = VoxelVolume(np.zeros((0, 3), np.int64), 1.0)
-
-
-@numba.njit(cache=True, nogil=True)
-def _summed_volumes(k, sat, csat):
-    """sat, csat (zeros, a zero first plane per axis) = the summed-volume tables of the cells k (M, 3; from 1)
-    and of their CBLOCK-sided blocks (how many occupied cells each holds)."""
-    for i in range(k.shape[0]):
-        a, b, c = k[i, 0], k[i, 1], k[i, 2]
-        if sat[a, b, c] == 0:
-            sat[a, b, c] = 1
-            csat[(a - 1) // CBLOCK + 1, (b - 1) // CBLOCK + 1, (c - 1) // CBLOCK + 1] += 1
-    summed_volume(sat)
-    summed_volume(csat)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _voxels_in(sat, csat, key_min, inv_res, lo0, lo1, lo2, hi0, hi1, hi2):
-    """Cells with an occupied voxel whose cube meets the box [lo, hi] [m] (summed-volume tables with a zero first
-    plane per axis): 0 at once when the coarse blocks around those cells hold none, else the fine table's count."""
-    n0, n1, n2 = sat.shape[0] - 1, sat.shape[1] - 1, sat.shape[2] - 1
-    a0 = max(np.int64(np.floor(lo0 * inv_res)) - key_min[0], 0)
-    a1 = max(np.int64(np.floor(lo1 * inv_res)) - key_min[1], 0)
-    a2 = max(np.int64(np.floor(lo2 * inv_res)) - key_min[2], 0)
-    b0 = min(np.int64(np.floor(hi0 * inv_res)) - key_min[0], n0 - 1)
-    b1 = min(np.int64(np.floor(hi1 * inv_res)) - key_min[1], n1 - 1)
-    b2 = min(np.int64(np.floor(hi2 * inv_res)) - key_min[2], n2 - 1)
-    if a0 > b0 or a1 > b1 or a2 > b2:
-        return 0
-    if _box_sum(csat, a0 // CBLOCK, a1 // CBLOCK, a2 // CBLOCK, b0 // CBLOCK + 1, b1 // CBLOCK + 1,
-                b2 // CBLOCK + 1) == 0:  # fmt: skip
-        return 0
-    return _box_sum(sat, a0, a1, a2, b0 + 1, b1 + 1, b2 + 1)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _box_sum(sat, a0, a1, a2, b0, b1, b2):
-    """The sum of the cells [a, b) of the summed-volume table `sat`."""
-    return (
-        sat[b0, b1, b2]
-        - sat[a0, b1, b2]
-        - sat[b0, a1, b2]
-        - sat[b0, b1, a2]
-        + sat[a0, a1, b2]
-        + sat[a0, b1, a2]
-        + sat[b0, a1, a2]
-        - sat[a0, a1, a2]
-    )
-
-
 # The helpers below take arrays and indices, never a row's view: a view costs a reference count in the hot loop.
 
 
@@ -324,24 +235,6 @@ def spheres_meet_body(C, rad, a0, a1, b0, b1, BC, ba, bb, ball_r, grow, sel) -> 
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def ball_in_map(sat, csat, key_min, inv_res, x, y, z, g) -> bool:
-    """Whether a voxel of the map may meet the ball at (x, y, z) of radius g (its bounding cube meets one)."""
-    return _voxels_in(sat, csat, key_min, inv_res, x - g, y - g, z - g, x + g, y + g, z + g) > 0
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def map_box(sat, key_min, inv_res):
-    """lo0, lo1, lo2, hi0, hi1, hi2 [m] of the volume's cells, a cell wider each way; an empty map's is empty."""
-    if sat.shape[0] <= 1:
-        return np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
-    c = 1.0 / inv_res
-    return (
-        (key_min[0] - 1) * c, (key_min[1] - 1) * c, (key_min[2] - 1) * c, (key_min[0] + sat.shape[0]) * c,
-        (key_min[1] + sat.shape[1]) * c, (key_min[2] + sat.shape[2]) * c,
-    )  # fmt: skip
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
 def ball_near_box(lo0, lo1, lo2, hi0, hi1, hi2, x, y, z, g) -> bool:
     """Whether the ball at (x, y, z) of radius g meets the box [lo, hi]."""
     return lo0 <= x + g and x - g <= hi0 and lo1 <= y + g and y - g <= hi1 and lo2 <= z + g and z - g <= hi2
@@ -367,7 +260,7 @@ def spheres_meet_map(C, rad, first, last, grow, sat, csat, key_min, inv_res) -> 
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _place(frames, n, slot, P, first, last, out):
+def place_points(frames, n, slot, P, first, last, out):
     """out[first:last] = P[first:last] placed by the frame frames[n, slot]."""
     for s in range(first, last):
         x, y, z = P[s, 0], P[s, 1], P[s, 2]
@@ -405,7 +298,7 @@ def verdicts(Q, order, stop, env_pad, map_pad, self_pad, L, out):
         n = order[t]
         frames_of(Q, n, Fj, prismatic, joints, parents, frames, 0)
         for b in range(B):
-            _place(frames, 0, ball_slot[b], ball_c, b, b + 1, BC)
+            place_points(frames, 0, ball_slot[b], ball_c, b, b + 1, BC)
             placed[b] = placed_in[b] = False
         verdict = 1
         for b in range(B):
@@ -420,7 +313,7 @@ def verdicts(Q, order, stop, env_pad, map_pad, self_pad, L, out):
                     near[m] = o
                     m += 1
             if m > 0 and not placed[b]:
-                _place(frames, 0, ball_slot[b], local, first[b], first[b + 1], C)
+                place_points(frames, 0, ball_slot[b], local, first[b], first[b + 1], C)
                 placed[b] = True
             hit = False  # a covering sphere meets an obstacle: then maybe an inner ball does too (certain)
             for i in range(m):
@@ -431,7 +324,7 @@ def verdicts(Q, order, stop, env_pad, map_pad, self_pad, L, out):
                     break
             if hit:
                 verdict = 0
-                _place(frames, 0, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
+                place_points(frames, 0, ball_slot[b], in_local, in_first[b], in_first[b + 1], IC)
                 placed_in[b] = True
                 for i in range(m):
                     o = near[i]
@@ -448,7 +341,7 @@ def verdicts(Q, order, stop, env_pad, map_pad, self_pad, L, out):
             if verdict == 1 and octree_mask[b] and ball_near_box(m0, m1, m2, M0, M1, M2, x, y, z, ball_r[b] + mg):
                 if ball_in_map(sat, csat, key_min, inv_res, x, y, z, ball_r[b] + mg):
                     if not placed[b]:
-                        _place(frames, 0, ball_slot[b], local, first[b], first[b + 1], C)
+                        place_points(frames, 0, ball_slot[b], local, first[b], first[b + 1], C)
                         placed[b] = True
                     if spheres_meet_map(C, rad, first[b], first[b + 1], mg, sat, csat, key_min, inv_res):
                         verdict = 0
@@ -460,7 +353,7 @@ def verdicts(Q, order, stop, env_pad, map_pad, self_pad, L, out):
                     continue
                 for bo in (ba, bb):
                     if not placed[bo]:
-                        _place(frames, 0, ball_slot[bo], local, first[bo], first[bo + 1], C)
+                        place_points(frames, 0, ball_slot[bo], local, first[bo], first[bo + 1], C)
                         placed[bo] = True
                 if not spheres_meet_body(
                     C, rad, first[ba], first[ba + 1], first[bb], first[bb + 1], BC, ba, bb, ball_r, sg, sel
@@ -469,7 +362,7 @@ def verdicts(Q, order, stop, env_pad, map_pad, self_pad, L, out):
                 verdict = 0
                 for bo in (ba, bb):  # inner balls are placed only when a contact for certain may be found
                     if not placed_in[bo]:
-                        _place(frames, 0, ball_slot[bo], in_local, in_first[bo], in_first[bo + 1], IC)
+                        place_points(frames, 0, ball_slot[bo], in_local, in_first[bo], in_first[bo + 1], IC)
                         placed_in[bo] = True
                 for a in range(in_first[ba], in_first[ba + 1]):  # two inner balls overlap: a contact for certain
                     for c in range(in_first[bb], in_first[bb + 1]):

@@ -9,7 +9,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..errors import InvalidInputError
-from .collision import CollisionChecker, Contact, ContactKind
+from .exact import CollisionChecker, Contact, ContactKind
 
 MIN_RESOLUTION = 0.002  # [m] the finest path resolution a small padding asks for (padding 0: within 1 mm)
 MAX_PADDING = 0.2  # [m]

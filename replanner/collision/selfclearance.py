@@ -14,14 +14,17 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import threading
+import weakref
 from pathlib import Path
 
 import fcl
 import numba
 import numpy as np
 
-from .geometry import bounding_radius, padded, to_fcl
-from .kernels import kernel_array
+from ..cache_dirs import default_cache_dir
+from ..model.geometry import bounding_radius, padded, to_fcl
+from ..model.kinematics import kernel_array
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +32,19 @@ _FORMAT = 3
 DEFAULT_STEP = np.deg2rad(2.0)
 MAX_POINTS = 256
 BLOCK = 8  # grid points a side of a coarse cell: the cells' least clearances stay in cache and answer most lookups
+_BUILT: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # robot model -> its tables: every checker shares them
+_BUILDING = threading.Lock()
+
+
+def clearance_tables(robot) -> SelfClearanceTables:
+    """The tables of `robot`'s close self-collision pairs: built once per robot model, cached on disk."""
+    with _BUILDING:
+        tables = _BUILT.get(robot)
+        if tables is None:
+            tables = _BUILT[robot] = SelfClearanceTables(
+                robot, robot.self_collision_pairs, cache_dir=default_cache_dir()
+            )
+        return tables
 
 
 class SelfClearanceTables:
@@ -46,7 +62,7 @@ class SelfClearanceTables:
         rows = []
         for pi, (a, b) in enumerate(np.asarray(pairs).reshape(-1, 2)):
             joints = self._joints_between(robot, int(a), int(b))
-            if joints is not None and 1 <= len(joints) <= 2 and not robot._prismatic[joints].any():
+            if joints is not None and 1 <= len(joints) <= 2 and not robot.prismatic[joints].any():
                 rows.append((pi, int(a), int(b), joints))
         self.pair_index = np.array([r[0] for r in rows], dtype=np.int64)
         P = len(rows)
@@ -134,17 +150,17 @@ class SelfClearanceTables:
     def _joints_between(robot, a: int, b: int) -> np.ndarray | None:
         ka = robot.link_frame_index(robot.bodies[a].link)
         kb = robot.link_frame_index(robot.bodies[b].link)
-        anc_a = robot._frame_anc[ka] if ka >= 0 else np.zeros(robot.dof, bool)
-        anc_b = robot._frame_anc[kb] if kb >= 0 else np.zeros(robot.dof, bool)
+        anc_a = robot.moved_by[ka] if ka >= 0 else np.zeros(robot.dof, bool)
+        anc_b = robot.moved_by[kb] if kb >= 0 else np.zeros(robot.dof, bool)
         return np.flatnonzero(anc_a ^ anc_b)
 
     def _key(self, rows) -> str:
         r = self.robot
         h = hashlib.sha256()
         h.update(f"{_FORMAT}|{r.self_padding!r}|".encode())
-        for arr in (r._F, r._link_offset, self.n0, self.n1, self.lo0, self.lo1, self.step0, self.step1):
+        h.update(r.kinematics_digest())
+        for arr in (self.n0, self.n1, self.lo0, self.lo1, self.step0, self.step1):
             h.update(np.ascontiguousarray(arr).tobytes())
-        h.update(repr(sorted(r.passive_joint_positions.items())).encode())
         for _, a, b, joints in rows:
             for bi in (a, b):
                 body = r.bodies[bi]

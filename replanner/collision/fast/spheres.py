@@ -16,7 +16,7 @@ import numpy as np
 import scipy.spatial
 import trimesh
 
-from .geometry import Box, ConvexHull, Cylinder, Shape, Sphere
+from ...model.geometry import Box, ConvexHull, Cylinder, Shape, Sphere
 
 TOLERANCE = 0.04  # [m] a sphere may reach beyond its body's face planes: tighter means more spheres
 MAX_DEPTH = 10  # halvings of a piece at most

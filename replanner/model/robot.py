@@ -17,11 +17,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..cache_dirs import default_cache_dir
 from ..errors import InvalidInputError, RobotModelError, UnknownNameError
 from ..sections import RobotConfig
-from .kernels import chain_frames, warm_up
-from .selfcollision import SelfClearanceTables
+from .kinematics import chain_frames, warm_up
 from .urdf import CollisionBody, collision_bodies, load_urdf
 
 log = logging.getLogger(__name__)
@@ -253,8 +251,7 @@ class RobotModel:
         self.self_padding = float(self_padding)
         self.self_body_padding = self.self_padding / 2  # per body, so a pair keeps self_padding apart
         self.self_collision_pairs = self._self_pairs(order, allowed_self_pairs)
-        self._self_tables: SelfClearanceTables | None = None
-        warm_up()  # the collision kernels compile now, not in the first check of a running motion
+        warm_up()  # the kinematics kernels compile now, not in the first check of a running motion
 
     @classmethod
     def from_config(cls, cfg: RobotConfig) -> RobotModel:
@@ -307,12 +304,6 @@ class RobotModel:
         out = np.array(pairs, dtype=np.int64).reshape(-1, 2)
         out.setflags(write=False)
         return out
-
-    def self_clearance_tables(self) -> SelfClearanceTables:
-        """Clearance tables of the close self-collision pairs (built once, cached on disk; see selfcollision)."""
-        if self._self_tables is None:
-            self._self_tables = SelfClearanceTables(self, self.self_collision_pairs, cache_dir=default_cache_dir())
-        return self._self_tables
 
     # ------------------------------------------------------------------ names and checks
     def link_index(self, link: str) -> int:
@@ -439,6 +430,17 @@ class RobotModel:
         return self.frame_reach(
             int(self._link_frame[li]) + 1, float(np.linalg.norm(self._link_offset[li][:3, 3])) + radius
         )
+
+    @property
+    def prismatic(self) -> np.ndarray:
+        """(dof,) bool, read-only: which active joints slide (the rest turn)."""
+        return self._prismatic
+
+    def kinematics_digest(self) -> bytes:
+        """The chain's geometry as bytes (joint frames, link offsets, passive joints' positions): equal for robots
+        whose links move alike, so what is computed from it can be cached under it."""
+        parts = [np.ascontiguousarray(a).tobytes() for a in (self._F, self._link_offset)]
+        return b"".join(parts) + repr(sorted(self.passive_joint_positions.items())).encode()
 
     @property
     def moved_by(self) -> np.ndarray:

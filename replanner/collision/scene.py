@@ -12,14 +12,14 @@ from dataclasses import dataclass
 import fcl
 import numpy as np
 
-from .geometry import Shape, bounding_radius, padded_geometry, padded_vertices
-from .hull_graph import edge_graph
-from .kernels import body_poses
-from .robot import RobotModel
-from .scene import WorldSnapshot
+from ..model.geometry import Shape, bounding_radius, padded_geometry, padded_vertices
+from ..model.robot import RobotModel
+from ..world.scene import WorldSnapshot
+from .boxes import body_poses
+from .checker import OCTREE
+from .hulls import edge_graph
+from .selfclearance import clearance_tables
 from .sweep import Sweep
-
-OCTREE = "octree"  # the occupancy map's name in allowed contacts, contacts and clearances
 
 
 @dataclass(frozen=True, eq=False)
@@ -190,7 +190,7 @@ class CollisionScene:
         P = np.array(pairs, dtype=np.int64).reshape(-1, 2)
         self.pair_a, self.pair_b = P[:, 0], P[:, 1]
         # robot pairs come first, so table columns index this list directly
-        self.tables = robot.self_clearance_tables()
+        self.tables = clearance_tables(robot)
         self.table_cols = self.tables.pair_index
         box = np.ones(len(P), dtype=bool)
         box[self.table_cols] = False

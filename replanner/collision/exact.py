@@ -17,96 +17,24 @@ import math
 import numbers
 import threading
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, replace
-from enum import Enum
-from typing import NamedTuple
+from dataclasses import replace
 
 import fcl
 import numpy as np
 
 from ..errors import InvalidInputError
+from ..model.kinematics import kernel_array
+from ..model.robot import RobotModel
+from ..world.scene import World, WorldSnapshot
+from . import boxes
 from .batches import run_batch
+from .boxes import body_boxes
 from .broadphase import MAP, broadphase
-from .collision_scene import OCTREE, CollisionScene, ThreadObjects
-from .geometry import Shape
-from .kernels import body_boxes, kernel_array
-from .robot import RobotModel
-from .scene import World, WorldSnapshot
+from .checker import OCTREE, BodyPoses, Clearance, Contact, ContactKind, PathCheck
+from .scene import CollisionScene, ThreadObjects
 
 log = logging.getLogger(__name__)
 _NO_MAP = (np.zeros(3), 1.0, np.zeros(3, np.int64), np.zeros(1, np.int32))  # a one-cell table: no map
-
-
-class ContactKind(str, Enum):
-    """Why a configuration is invalid; a str, so `kind == "octree"` and JSON keep working."""
-
-    WORLD = "world"  # a static object
-    OCTREE = "octree"  # the occupancy map
-    SELF = "self"  # another robot link or an attached object
-    LIMITS = "limits"  # not a contact: a joint outside its position limits
-
-    def __str__(self) -> str:
-        return self.value
-
-
-@dataclass(frozen=True)
-class Contact:
-    """Why a configuration is invalid: `body` (robot link or attached object) touches `other`.
-
-    For LIMITS, `body` is the joint outside its limits and `other` is empty.
-    """
-
-    kind: ContactKind
-    body: str
-    other: str
-    near: tuple[float, float, float] | None = None  # world point of an octree contact (to find the voxels)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "kind", ContactKind(self.kind))  # a plain string still names a valid kind
-
-    def __str__(self) -> str:
-        if self.kind is ContactKind.LIMITS:
-            return f"joint {self.body} is outside its limits"
-        if self.kind is ContactKind.OCTREE:
-            where = "" if self.near is None else " near ({:.3f}, {:.3f}, {:.3f})".format(*self.near)
-            return f"{self.body} collides with the occupancy map{where}"
-        what = "object" if self.kind is ContactKind.WORLD else "link"
-        return f"{self.body} collides with {what} {self.other!r}"
-
-
-@dataclass(frozen=True)
-class Clearance:
-    """Minimum distance [m] between the robot (unpadded) and the world, and who is closest.
-
-    `distance` is capped at the query's `max_distance`; it is 0 or negative in contact.
-    """
-
-    distance: float
-    body: str | None
-    obstacle: str | None
-    point_on_robot: np.ndarray | None
-    point_on_obstacle: np.ndarray | None
-
-
-@dataclass(frozen=True)
-class PathCheck:
-    """Result of a path check: `segment` i means between waypoints i and i+1, at `fraction` in [0, 1]."""
-
-    valid: bool
-    checked: int
-    segment: int = -1
-    fraction: float = 0.0
-    q: np.ndarray | None = None
-    contact: Contact | None = None
-
-
-class BodyPoses(NamedTuple):
-    """The bodies a checker tests, in its order, and their poses at some configurations."""
-
-    names: tuple[str, ...]  # as in `Contact.body`: the link, or "attached:<object>"
-    links: tuple[str, ...]  # the link each body is fixed to
-    shapes: tuple[Shape, ...]  # unpadded, in the body frame
-    poses: np.ndarray  # T_base_body (..., B, 4, 4)
 
 
 class CollisionChecker:
@@ -160,6 +88,7 @@ class CollisionChecker:
         self._request = fcl.CollisionRequest()
         self._contact_request = fcl.CollisionRequest(num_max_contacts=1, enable_contact=True)
         self._dist_request = fcl.DistanceRequest(enable_nearest_points=True, enable_signed_distance=True)
+        boxes.warm_up()
         self.is_valid(robot.home)  # compile the broadphase and build the scene now, not in the first check of a motion
 
     @classmethod
@@ -174,8 +103,10 @@ class CollisionChecker:
             allowed_contacts=cfg.allowed_contacts,
         )
 
-    # ------------------------------------------------------------------ caches
-    def _scene_of(self, snap: WorldSnapshot) -> CollisionScene:
+    # ------------------------------------------------------------------ the world's version
+    def scene(self, snap: WorldSnapshot | None = None) -> CollisionScene:
+        """What this checker derives from world version `snap` (default: the present one), built once per version."""
+        snap = self.world.snapshot() if snap is None else snap
         scene = self._scene
         if scene is None or scene.version != snap.version:
             with self._scene_lock:
@@ -191,13 +122,31 @@ class CollisionChecker:
                     self._scene = scene
         return scene
 
+    @property
+    def exact(self) -> CollisionChecker:
+        """This checker: it is the exact one (see `Checker`)."""
+        return self
+
+    def ready(self) -> bool:
+        """Whether the scene of the world's present version is built (an edit rebuilds it on the next check)."""
+        scene = self._scene
+        return scene is not None and scene.version == self.world.snapshot().version
+
+    def prepare(self) -> None:
+        """Build the scene of the world's present version now."""
+        self.scene()
+
+    def warm(self) -> None:
+        """Compile and build what a first check needs, now (the constructor did: the scene of a new version)."""
+        self.prepare()
+
     def _current(
         self, occupancy=None
     ) -> tuple[WorldSnapshot, CollisionScene, ThreadObjects, Callable[[], fcl.CollisionObject] | None]:
         snap = self.world.snapshot()
         if occupancy is not None:  # another map than the world's (e.g. only what is new in the world's)
             snap = replace(snap, occupancy=occupancy)
-        scene = self._scene_of(snap)
+        scene = self.scene(snap)
         objs = getattr(self._local, "objs", None)
         if objs is None or objs.scene is not scene:
             objs = ThreadObjects(scene)
@@ -368,9 +317,21 @@ class CollisionChecker:
         have shape (..., B, 4, 4). For visualisation and for tests that check the checker against an oracle.
         """
         q = self.robot.check_q(q)
-        scene = self._scene_of(self.world.snapshot())
+        scene = self.scene()
         T = self._body_poses(scene, q.reshape(-1, self.robot.dof))
         return BodyPoses(scene.names, scene.links, scene.shapes, T.reshape(q.shape[:-1] + T.shape[1:]))
+
+    def all_valid(self, Q) -> bool:
+        """Whether every configuration of Q (N, dof) is valid; stops at the first invalid one."""
+        Q = self.robot.check_q(Q).reshape(-1, self.robot.dof)
+        return bool(self._first_invalid(Q, True)[0].all())
+
+    def motion_valid(self, a: np.ndarray, b: np.ndarray, resolution: float, given: int = 0) -> bool:
+        """Whether the straight motion a -> b is valid, checked every `resolution` [m] (0: a alone); `given` (ends known
+        valid) is not needed here: a path check tests each configuration once."""
+        if resolution == 0:
+            return self.is_valid(a)
+        return self.path_valid(np.array([a, b]), resolution)
 
     def check(self, q) -> Contact | None:
         """None if q is valid, else the first contact found (which link touches what)."""
