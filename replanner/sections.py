@@ -355,7 +355,9 @@ class ReflexConfig(Section):
     motion jerk-limited and checked like any path, back onto the path after `ramp` + `hold` + `ramp` of arc."""
 
     method: Literal["forces", "kernels"] = Field(
-        "forces", description="forces: seed 000's virtual forces on a vertex model; kernels: seed 001's kernels."
+        "forces",
+        description="forces: the GPU potential-field paper's virtual forces on a vertex model; kernels: Baumgartner "
+        "and Klančar's convolution kernels.",
     )
     task: Literal["path", "position"] = Field(
         "path",
@@ -405,9 +407,10 @@ class ReflexConfig(Section):
 class ControllerConfig(Section):
     reaction: Reaction = Field(
         Reaction.REPLAN,
-        description="Path blocked while moving: replan on the move (paper 002); the same with a reflex that swerves "
-        "off the path at once (replan_reflex); the reflex alone, back onto the same path (reflex); brake, wait and "
-        "plan from rest (MoveIt-style baseline); or ignore the map once moving (no monitoring; for comparison only).",
+        description="Path blocked while moving: replan on the move (the KineoWorks reactive-planning paper); the same "
+        "with a reflex that swerves off the path at once (replan_reflex); the reflex alone, back onto the same path "
+        "(reflex); brake, wait and plan from rest (MoveIt-style baseline); or ignore the map once moving (no "
+        "monitoring; for comparison only).",
     )
     policy: AfterBrake = Field(
         AfterBrake.WAIT_AND_RESUME, description="After a safety brake: hold and resume when clear, or fail the goal."

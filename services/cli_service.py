@@ -237,7 +237,7 @@ def robot(
     from . import robot_node
 
     if not kinematic:
-        fail(ConfigError("only --kinematic exists here; the physics robot is `replanner sim` (issue 7)"))
+        fail(ConfigError("only --kinematic exists here; the physics robot is `replanner sim`"))
     try:
         cfg = resolve_config(config)
         q0 = floats(joints, "--joints", len(cfg.robot.joints)) if joints else None

@@ -78,13 +78,30 @@ def _pct(values, q):
     return round(float(np.percentile(values, q)), 4) if values else None
 
 
-def run(config: str, cfg: ReplannerConfig, *, minutes: float, seed: int, policy: str, every: float = 60.0,
-        log_dir: str | None = None, console: Console | None = None) -> dict:  # fmt: skip
+def run(
+    config: str,
+    cfg: ReplannerConfig,
+    *,
+    minutes: float,
+    seed: int,
+    policy: str,
+    every: float = 60.0,
+    log_dir: str | None = None,
+    console: Console | None = None,
+) -> dict:
     sampler = Sampler(every)
     metrics, rec, info = demo_mod.run(
-        config, cfg, cycles=10**6, duration=minutes * 60.0, seed=seed, policy=policy, log_dir=log_dir, live=False,
-        console=console, tick=sampler,
-    )  # fmt: skip
+        config,
+        cfg,
+        cycles=10**6,
+        duration=minutes * 60.0,
+        seed=seed,
+        policy=policy,
+        log_dir=log_dir,
+        live=False,
+        console=console,
+        tick=sampler,
+    )
     rows = sampler.rows
     return {
         "soak": True,

@@ -49,8 +49,14 @@ def headless_chromium(url: str | None = None, size=(960, 640)):
         raise ReplannerError("chromium and chromedriver are missing: `make test` installs them (apt-get)")
     opts = webdriver.ChromeOptions()
     opts.binary_location = chromium
-    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", f"--window-size={size[0]},{size[1]}",
-              "--use-gl=swiftshader", "--enable-unsafe-swiftshader"):  # fmt: skip
+    for a in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-dev-shm-usage",
+        f"--window-size={size[0]},{size[1]}",
+        "--use-gl=swiftshader",
+        "--enable-unsafe-swiftshader",
+    ):
         opts.add_argument(a)
     browser = webdriver.Chrome(service=Service(driver), options=opts)
     if url is not None:

@@ -1,5 +1,5 @@
-"""Seed 000's virtual forces: the compiled sum equals every vertex-voxel pair in float64; the map keeps what the
-camera sees of the world, not the robot nor lone outliers."""
+"""The GPU potential-field paper's virtual forces: the compiled sum equals every vertex-voxel pair in float64; the map
+keeps what the camera sees of the world, not the robot nor lone outliers."""
 
 from __future__ import annotations
 
@@ -122,7 +122,7 @@ def test_a_swerve_moves_the_arm_away_from_what_is_near_it(panda):
             assert dq is not None and np.abs(dq).max() <= 0.1 + 1e-12, (method, task)
             before, after = (VertexModel.place(r.model, panda, x) for x in (q, q + dq))
             gap = [np.linalg.norm(v[:, None] - box[None], axis=2).min() for v in (before, after)]
-            if (method, task) != ("kernels", "position"):  # seed 001's N J+ can turn a push around (docs/reflex.md)
+            if (method, task) != ("kernels", "position"):  # the kernels' N J+ can turn a push around (docs/reflex.md)
                 assert gap[1] > gap[0] + 0.005, (method, task, gap)
             if task == "position":
                 assert np.linalg.norm(panda.link_pose(q + dq, "panda_hand")[:3, 3] - hand) < 0.02

@@ -111,7 +111,7 @@ def run(
 
 
 def _layer_rates(checker: CollisionChecker, Qs: list[np.ndarray], chunk: int) -> dict:
-    """The planning layer (sphere_layer) on the same configurations: its own verdicts (free / contact for certain,
+    """The fast layer (collision/fast) on the same configurations: its own verdicts (free / contact for certain,
     or unsure) per second, forward kinematics included: whole runs on one core and on all, `chunk` at a time, and
     its verdicts with the convex pass and FCL deciding the unsure ones (`verdicts_unlike_fcl` counts those unlike
     FCL's, and the parallel kernel's unlike the serial one's: 0)."""

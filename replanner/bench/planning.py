@@ -385,8 +385,12 @@ def summarize(rows: list[dict], robot: str, seed: int, deadline: float, cfg) -> 
             d["failures"] = failures
         if sel:  # the problem to replay when a deadline is overrun
             slow = max(sel, key=lambda r: r["plan_ms"])
-            d["slowest"] = {"family": slow["family"], "index": slow["index"], "plan_ms": slow["plan_ms"],
-                            "success": slow["success"]}  # fmt: skip
+            d["slowest"] = {
+                "family": slow["family"],
+                "index": slow["index"],
+                "plan_ms": slow["plan_ms"],
+                "success": slow["success"],
+            }
         return d
 
     families = sorted({r["family"] for r in rows}, key=FAMILIES.index)

@@ -94,8 +94,9 @@ def run(
             t_drop = seen["drop"]
             pending = next((t.stamp for t in trans if t.dest == State.PENDING.value and t.stamp >= t_drop), None)
             spliced = next((t.stamp for t in trans if t.trigger == "spliced" and pending and t.stamp >= pending), None)
-            sent = next((e[2] for e in log if e[1] == "plan_sent" and e[2]["spliced"] and pending and e[0] >= pending),
-                        None)  # fmt: skip
+            sent = next(
+                (e[2] for e in log if e[1] == "plan_sent" and e[2]["spliced"] and pending and e[0] >= pending), None
+            )
             landed = sent and sent["land"]
             braked = any(e[1] == "brake" and e[0] >= t_drop for e in log)
             clearance = _min_distance(sim, t_drop, time.monotonic())

@@ -1,6 +1,7 @@
-"""`replanner bench reflex`: seed 000's Table II setting on our CPU cores: a 640x480 depth frame of a person next to
-the arm, the voxel map (insertion, robot removal, outliers) and the per-link forces, for 10 / 5 mm voxels and the
-paper's 4,701 / 2,468 robot vertices."""
+"""`replanner bench reflex`: the setting of Table II of the GPU potential-field paper (virtual forces from Kinect
+point clouds on a KUKA LWR) on our CPU cores: a 640x480 depth frame of a person next to the arm, the voxel map
+(insertion, robot removal, outliers) and the per-link forces, for 10 / 5 mm voxels and the paper's 4,701 / 2,468
+robot vertices; and the experiment of Baumgartner and Klančar's convolution kernels."""
 
 from __future__ import annotations
 
@@ -102,7 +103,8 @@ def run(cfg: ReplannerConfig, *, seed: int = 0, n: int = 30, r_max: float = 0.3,
         "seed_001_wall": wall,
         "robot": robot.name,
         "seed": seed,
-        "setting": "seed 000 Table II: workspace 2000 x 2000 x 1800 mm, r_max 300 mm, a 640x480 depth frame",
+        "setting": "the GPU potential-field paper's Table II: workspace 2000 x 2000 x 1800 mm, r_max 300 mm, "
+        "a 640x480 depth frame",
         "r_max_m": r_max,
         "frame_points": int(np.isfinite(cloud).all(axis=1).sum()),
         "cores": os.cpu_count(),
@@ -146,7 +148,7 @@ def swerve_timing(cfg: ReplannerConfig, cloud: np.ndarray, q, *, seed: int = 0, 
     }
 
 
-POINTS = (  # seed 001's points of interest: a point on each moving link of the arm
+POINTS = (  # Baumgartner and Klančar's points of interest: a point on each moving link of the arm
     ("panda_link3", (0.0, 0.0, 0.0)),
     ("panda_link4", (0.0, 0.0, 0.0)),
     ("panda_link5", (0.0, 0.0, -0.1)),
@@ -185,9 +187,9 @@ def kernel_timing(cfg: ReplannerConfig, *, seed: int = 0, n: int = 200, spec: Ke
 
 
 def reach_past_wall(cfg: ReplannerConfig, avoid: bool, spec: KernelSpec | None = None, steps: int = 1200) -> dict:
-    """Seed 001's experiment on the kinematic Panda: the hand reaches past the end of a wall (y = 0.15 m, x < 0.2 m)
-    to (0.4, 0.45, 0.25) by the attractive field; joint 4 (a point of interest) with or without its avoidance
-    velocity. Integrated at 100 Hz from the home configuration."""
+    """Baumgartner and Klančar's experiment on the kinematic Panda: the hand reaches past the end of a wall (y = 0.15
+    m, x < 0.2 m) to (0.4, 0.45, 0.25) by the attractive field; joint 4 (a point of interest) with or without its
+    avoidance velocity. Integrated at 100 Hz from the home configuration."""
     robot = RobotModel.from_config(cfg.robot)
     spec, res, wall_y, goal = spec or KernelSpec(), 0.01, 0.15, np.array([0.4, 0.45, 0.25])
     X, Y, Z = np.meshgrid(np.arange(-0.4, 0.2, res), [wall_y], np.arange(0.3, 1.0, res), indexing="ij")

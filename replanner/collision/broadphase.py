@@ -2,7 +2,7 @@
 boxes, and the pairs whose boxes meet (what FCL must test), in the order FCL tests them. One pass instead of a
 kernel per step with Python between them: a path's worth of configurations costs microseconds each. A path's
 neighbouring configurations are taken CHUNK at a time: a pair whose boxes over the whole chunk stay apart is not
-tested for any of them (a path's dense check: 15 % less time, the same tests)."""
+tested for any of them (the same tests, fewer of them)."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ CHUNK = 16  # configurations whose boxes are joined first: a body far from an ob
 @numba.njit(cache=True, nogil=True, inline="always")
 def hull_apart(T, n, b, V, R, c, h, first, nb, hint) -> bool:
     """Whether one of a box's axes (rotation R: its axes as columns, centre c, half extents h, world) parts it from
-    body b's hull (vertices V in its frame, edges first, nb: hull_graph.edge_graph, at pose T[n, b]): the hull's
+    body b's hull (vertices V in its frame, edges first, nb: hulls.edge_graph, at pose T[n, b]): the hull's
     support along the axis, exact, against the box's half extent, climbed from hint[b] (6: the last lows and highs
     per axis, hull vertices; left at the answers)."""
     for k in range(3):
@@ -53,10 +53,47 @@ def _push(tests, m, n, kind, a, b):
 
 @numba.njit(cache=True, nogil=True)
 def broadphase(
-    Q, F, prismatic, joints, parents, slot, off, box_c, box_h, octree_mask, origin, inv_cell, ncell, sat, objects,
-    env_mask, obs_lo, obs_hi, obs_R, obs_c, obs_h, hull_v, hull_first, hull_edges, hull_nb, hull_start, pair_a, pair_b,
-    pair_tab, k0, tab_i, tab_f, table, own_v, own_first, own_edges, own_nb, own_start, T, tests,
-):  # fmt: skip
+    Q,
+    origin,
+    inv_cell,
+    ncell,
+    sat,
+    objects,
+    k0,
+    F,
+    prismatic,
+    joints,
+    parents,
+    slot,
+    off,
+    box_c,
+    box_h,
+    octree_mask,
+    env_mask,
+    obs_lo,
+    obs_hi,
+    obs_R,
+    obs_c,
+    obs_h,
+    hull_v,
+    hull_first,
+    hull_edges,
+    hull_nb,
+    hull_start,
+    pair_a,
+    pair_b,
+    pair_tab,
+    tab_i,
+    tab_f,
+    table,
+    own_v,
+    own_first,
+    own_edges,
+    own_nb,
+    own_start,
+    T,
+    tests,
+):
     """T[n] = the body poses (B, 4, 4) of configuration Q[n] (body b: frame slot[b] times off[b]); returns `tests`
     (grown when full) and the count of its rows (n, kind, a, b) filled, the pairs whose boxes meet, per
     configuration in this order:
@@ -65,7 +102,7 @@ def broadphase(
       one cell: no map) and octree_mask[a];
     - OBJECT (when `objects`): body a's world box (box_c[0], box_h[0]) meets obstacle b's, world-aligned (obs_lo,
       obs_hi) and oriented (obs_R, obs_c, obs_h), the hull FCL is given for body a (hull_v[hull_first[a]:hull_first[a
-      + 1]], body frame, edges hull_edges, hull_nb from hull_start[a]: hull_graph.edge_graph; none: not asked)
+      + 1]], body frame, edges hull_edges, hull_nb from hull_start[a]: hulls.edge_graph; none: not asked)
       reaches the box on each of its axes, and env_mask[a, b];
     - SELF: pairs k >= k0 (pair_a[k], pair_b[k]): pair_tab[k] >= 0 asks its clearance table (tab_i, tab_f, table),
       the others their self boxes (box_c[1], box_h[1]), world-aligned, then oriented.
@@ -113,9 +150,17 @@ def broadphase(
         if with_map:
             for b in range(B):
                 if octree_mask[b] and box_hits_table(
-                    ulo[2, b, 0], ulo[2, b, 1], ulo[2, b, 2], uhi[2, b, 0], uhi[2, b, 1], uhi[2, b, 2],
-                    origin, inv_cell, ncell, sat,
-                ):  # fmt: skip
+                    ulo[2, b, 0],
+                    ulo[2, b, 1],
+                    ulo[2, b, 2],
+                    uhi[2, b, 0],
+                    uhi[2, b, 1],
+                    uhi[2, b, 2],
+                    origin,
+                    inv_cell,
+                    ncell,
+                    sat,
+                ):
                     near_map[nm] = b
                     nm += 1
         no = 0
@@ -144,9 +189,17 @@ def broadphase(
             for j in range(nm):
                 b = near_map[j]
                 if box_hits_table(
-                    lo[i, 2, b, 0], lo[i, 2, b, 1], lo[i, 2, b, 2], hi[i, 2, b, 0], hi[i, 2, b, 1], hi[i, 2, b, 2],
-                    origin, inv_cell, ncell, sat,
-                ):  # fmt: skip
+                    lo[i, 2, b, 0],
+                    lo[i, 2, b, 1],
+                    lo[i, 2, b, 2],
+                    hi[i, 2, b, 0],
+                    hi[i, 2, b, 1],
+                    hi[i, 2, b, 2],
+                    origin,
+                    inv_cell,
+                    ncell,
+                    sat,
+                ):
                     tests, m = _push(tests, m, n, MAP, b, 0)
             last = -1
             for j in range(no):

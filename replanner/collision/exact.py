@@ -159,7 +159,7 @@ class CollisionChecker:
 
     def _octree_of(self, occ, keep: bool) -> fcl.CollisionObject:
         """FCL's object of map `occ` (keep: the world's, asked for again and again), built when a test first needs
-        it: a check whose bodies meet no voxel's cell never builds the tree (2-9 ms, each planning job's new map)."""
+        it: a check whose bodies meet no voxel's cell never builds the tree (each planning job's map is new)."""
         cached = self._octree_obj
         if cached is None or cached[0] is not occ:
             cached = (occ, fcl.CollisionObject(occ.tree, fcl.Transform()))
@@ -268,13 +268,7 @@ class CollisionChecker:
         table = occ.broadphase_table() if occ is not None and len(occ) else _NO_MAP
         k0 = len(scene.pair_a) if octree_only else 0 if robot_pairs else scene.n_robot_pairs
         Qk = kernel_array(Q)
-        args = (
-            *self.robot.chain, scene.body_slot, scene.body_off, scene.box_c, scene.box_h, scene.octree_mask, *table,
-            not octree_only, scene.env_mask, scene.obs_lo, scene.obs_hi, scene.obs_R, scene.obs_c, scene.obs_h,
-            scene.hull_v, scene.hull_first, scene.hull_edges, scene.hull_nb, scene.hull_start, scene.pair_a,
-            scene.pair_b, scene.pair_tab, k0, scene.tables.packed_i, scene.tables.packed_f, scene.tables.lookup,
-            scene.own_v, scene.own_first, scene.own_edges, scene.own_nb, scene.own_start,
-        )  # fmt: skip
+        args = (*table, not octree_only, k0, *scene.broadphase_arrays)
 
         def tests_of(a: int, b: int):  # rows a:b (the broadphase releases the GIL)
             return broadphase(Qk[a:b], *args, T[a:b], np.empty((max(64, b - a), 4), np.int64))

@@ -72,7 +72,7 @@ class SceneBody:
 
 def hull_set(bodies, padding: float) -> tuple[np.ndarray, ...]:
     """The padded hulls of `bodies` (body frames) stacked: vertices (V, 3), each body's first vertex (B + 1,), and
-    their edges (hull_graph.edge_graph: first, nb, start) for climbing to supports; a primitive has none."""
+    their edges (hulls.edge_graph: first, nb, start) for climbing to supports; a primitive has none."""
     hulls = [padded_vertices(b.raw_shape, padding) for b in bodies]
     first = np.concatenate([[0], np.cumsum([len(v) for v in hulls])]).astype(np.int64)
     return (np.ascontiguousarray(np.concatenate(hulls), dtype=np.float64), first, *edge_graph(hulls))
@@ -205,6 +205,38 @@ class CollisionScene:
             radius = bounding_radius(b.raw_shape) + float(np.linalg.norm(b.T_link_body[:3, 3]))
             reach = np.maximum(reach, robot.reach(b.link, radius))
         self.sweep = Sweep(robot, self.body_slot, (self.body_off @ self.ball_c)[:, :3, 0], self.ball_r, reach)
+        # what the compiled broadphase reads of this scene, in its order (collision/broadphase.py)
+        t = self.tables
+        self.broadphase_arrays = (
+            *robot.chain,
+            self.body_slot,
+            self.body_off,
+            self.box_c,
+            self.box_h,
+            self.octree_mask,
+            self.env_mask,
+            self.obs_lo,
+            self.obs_hi,
+            self.obs_R,
+            self.obs_c,
+            self.obs_h,
+            self.hull_v,
+            self.hull_first,
+            self.hull_edges,
+            self.hull_nb,
+            self.hull_start,
+            self.pair_a,
+            self.pair_b,
+            self.pair_tab,
+            t.packed_i,
+            t.packed_f,
+            t.lookup,
+            self.own_v,
+            self.own_first,
+            self.own_edges,
+            self.own_nb,
+            self.own_start,
+        )
 
     def body_poses(self, frames: np.ndarray) -> np.ndarray:
         """Body poses (N, B, 4, 4) from the robot's `frames` (N, 1 + dof, 4, 4)."""

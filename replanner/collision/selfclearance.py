@@ -137,8 +137,11 @@ class SelfClearanceTables:
             cols.append(b.shape[1])
             offsets.append(at)
             at += b.size
-        return (np.concatenate(blocks) if blocks else np.zeros(0), np.array(cols, np.int64),
-                np.array(offsets, np.int64))  # fmt: skip
+        return (
+            np.concatenate(blocks) if blocks else np.zeros(0),
+            np.array(cols, np.int64),
+            np.array(offsets, np.int64),
+        )
 
     @staticmethod
     def _reach(robot, bi: int) -> np.ndarray:

@@ -9,8 +9,8 @@ computed at the piece's middle for each body (a ball around it, carried by its f
 - by speed: the ball's points move at most |v_c| + |w| r (the centre's velocity and the angular velocity, exact at
   the middle) plus half of a bound on how fast that changes along the piece (the axes turn with the joints before
   them, the points with all of them).
-The smaller one counts. On random motions it samples 0.39-0.64 times as often as the longest reach alone (4 mm to
-8 cm), and its bound stays under every vertex's way on pieces of 0.02-3 rad (tests/test_collision.py).
+The smaller one counts: a motion is sampled far less often than by the arm's longest reach alone, and the bound stays
+above every vertex's way along it (tests/test_collision.py).
 """
 
 from __future__ import annotations
@@ -44,9 +44,17 @@ class Sweep:
         beyond = anc.T.copy()
         np.fill_diagonal(beyond, False)
         self.args = (
-            F, prismatic, joints, parents, slot, np.ascontiguousarray(c), np.asarray(radius, np.float64),
-            np.ascontiguousarray(moves), np.ascontiguousarray(beyond), np.ascontiguousarray(reach, dtype=np.float64),
-        )  # fmt: skip
+            F,
+            prismatic,
+            joints,
+            parents,
+            slot,
+            np.ascontiguousarray(c),
+            np.asarray(radius, np.float64),
+            np.ascontiguousarray(moves),
+            np.ascontiguousarray(beyond),
+            np.ascontiguousarray(reach, dtype=np.float64),
+        )
         self(np.zeros((2, robot.dof)), 1.0)  # compiled (or loaded) now, not in the middle of a running path check
 
     def travel(self, a: np.ndarray, b: np.ndarray) -> float:
@@ -143,9 +151,24 @@ def sweep(W, resolution, F, prismatic, joints, parents, slot, centre, radius, mo
     for i in range(M - 1):
         for k in range(cuts[i]):
             t = piece_travel(
-                W[i], W[i + 1], k / cuts[i], (k + 1) / cuts[i], F, prismatic, joints, parents, slot, centre, radius,
-                moves, beyond, reach, qm, fr, R,
-            )  # fmt: skip
+                W[i],
+                W[i + 1],
+                k / cuts[i],
+                (k + 1) / cuts[i],
+                F,
+                prismatic,
+                joints,
+                parents,
+                slot,
+                centre,
+                radius,
+                moves,
+                beyond,
+                reach,
+                qm,
+                fr,
+                R,
+            )
             steps[p] = max(1, np.int64(np.ceil(t / resolution)))
             p += 1
     N = steps.sum() + 1

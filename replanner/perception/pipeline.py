@@ -378,9 +378,17 @@ class Perception:
             return np.zeros(0, dtype=np.int64)
         g = self.grid
         flat = shadow_cells(
-            g.keys(surface), kernel_array(origin), g.resolution, int(round(depth / g.resolution)),
-            g.lo, g.hi, g.key_lo, int(g.strides[0]), int(g.strides[1]), g.scratch,
-        )  # fmt: skip
+            g.keys(surface),
+            kernel_array(origin),
+            g.resolution,
+            int(round(depth / g.resolution)),
+            g.lo,
+            g.hi,
+            g.key_lo,
+            int(g.strides[0]),
+            int(g.strides[1]),
+            g.scratch,
+        )
         if not len(flat):
             return flat
         if self._shadow_filter is not None:  # a shadow never covers the robot or known objects

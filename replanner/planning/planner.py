@@ -55,10 +55,19 @@ SLIP_REFINE = 2.0  # a search after a slip checks this many times finer (each re
 PLANNERS = {
     name: getattr(og, name)
     for name in (
-        "RRTConnect", "RRT", "RRTstar", "InformedRRTstar", "BITstar", "AORRTC", "PRM", "PRMstar", "KPIECE1", "BKPIECE1",
+        "RRTConnect",
+        "RRT",
+        "RRTstar",
+        "InformedRRTstar",
+        "BITstar",
+        "AORRTC",
+        "PRM",
+        "PRMstar",
+        "KPIECE1",
+        "BKPIECE1",
         "LBKPIECE1",
     )
-}  # fmt: skip
+}
 
 
 def planner_class(name: str):

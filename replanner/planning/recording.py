@@ -98,8 +98,9 @@ class JobRecorder:
             if config is not None:
                 (self.directory / CONFIG).write_text(json.dumps(config, indent=1))
         except OSError as err:
-            raise InvalidInputError(f"planning.record_jobs: cannot create {self.directory} ({err}): give a writable "
-                                    "directory") from None  # fmt: skip
+            raise InvalidInputError(
+                f"planning.record_jobs: cannot create {self.directory} ({err}): give a writable directory"
+            ) from None
         taken = [int(p.stem.split("-")[1]) for p in self.directory.glob("job-*.npz") if p.stem.split("-")[1].isdigit()]
         self._next = max(taken, default=0) + 1
         self._left = int(max_jobs)
@@ -176,14 +177,31 @@ def _load(p: Path) -> RecordedJob:
             raise ValueError(f"format {meta.get('format')!r}, this version reads {FORMAT}")
         objects = [(o["name"], shape_from_dict(o["shape"]), np.asarray(o["pose"], float)) for o in meta["objects"]]
         attachments = [
-            (a["name"], shape_from_dict(a["shape"]), a["link"], np.asarray(a["T_link_object"], float),
-             tuple(a["touch_links"]), tuple(a["support"]))
+            (
+                a["name"],
+                shape_from_dict(a["shape"]),
+                a["link"],
+                np.asarray(a["T_link_object"], float),
+                tuple(a["touch_links"]),
+                tuple(a["support"]),
+            )
             for a in meta["attachments"]
-        ]  # fmt: skip
+        ]
         return RecordedJob(
-            p, meta.get("robot"), meta["purpose"], start, q_goal, float(meta["deadline"]), meta["padding"],
-            meta["planner"], objects, attachments, keys, float(meta["resolution"] or 0.0), meta["outcome"],
+            p,
+            meta.get("robot"),
+            meta["purpose"],
+            start,
+            q_goal,
+            float(meta["deadline"]),
+            meta["padding"],
+            meta["planner"],
+            objects,
+            attachments,
+            keys,
+            float(meta["resolution"] or 0.0),
+            meta["outcome"],
             None if meta.get("heading") is None else np.asarray(meta["heading"], float),
-        )  # fmt: skip
+        )
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as err:  # InvalidInputError too
         raise InvalidInputError(f"{p} is not a recorded planning job this version reads: {err}") from None

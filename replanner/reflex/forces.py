@@ -162,7 +162,7 @@ CELLS_PER_R = 2  # grid cells per r_max: 5^3 cells around a vertex, those wholly
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
-def _vertex_forces(R, V, start, lo, dims, cell, r_max, f_max, O, out):  # fmt: skip
+def _vertex_forces(R, V, start, lo, dims, cell, r_max, f_max, O, out):
     r2 = r_max * r_max
     for i in numba.prange(R.shape[0]):
         x, y, z = R[i, 0], R[i, 1], R[i, 2]

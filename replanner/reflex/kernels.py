@@ -82,7 +82,7 @@ class AvoidanceKernels:
 
 
 @numba.njit(cache=True)
-def _kernel_sums(a, lo, res, P, offsets, values, out):  # fmt: skip
+def _kernel_sums(a, lo, res, P, offsets, values, out):
     # OccupancyGrid.sample at every point + offset, times the kernel: no (P, S, 3) temporaries
     nx, ny, nz = a.shape
     for i in range(P.shape[0]):
@@ -136,8 +136,12 @@ class NullspaceReflex:
         return np.linalg.solve(J.T @ J + self.k_damp * np.eye(J.shape[1]), J.T)
 
     def poi_positions(self, q) -> np.ndarray:
-        return np.array([self.robot.link_pose(q, link)[:3, :3] @ p + self.robot.link_pose(q, link)[:3, 3]
-                         for link, p in self.points])  # fmt: skip
+        return np.array(
+            [
+                self.robot.link_pose(q, link)[:3, :3] @ p + self.robot.link_pose(q, link)[:3, 3]
+                for link, p in self.points
+            ]
+        )
 
     def joint_velocity(self, q, x_ee_dot, x_poi_dot, use_avoidance: bool = True) -> np.ndarray:
         """Joint velocities [rad/s] for an end-effector linear velocity (3,) and avoidance velocities (P, 3)."""

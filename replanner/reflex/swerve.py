@@ -1,10 +1,11 @@
-"""The reflex in the loop: a swerve off the path, away from what the map holds near the arm (issue 16).
+"""The reflex in the loop: a swerve off the path, away from what the map holds near the arm.
 
-Which way: seed 000's virtual joint torques (per-link forces and moments from the voxels within r_max of the arm's
-vertices, tau = sum_n J_n^T [f_n; m_n]) through an admittance, or seed 001's kernel velocities at one point of
-interest per link (q' = sum_p J_p+ x'_p); either projected into the nullspace of the task. Our arms take
-position commands: the admittance M q'' + D q' = tau, run from rest for `horizon` T, gives the offset
-dq = tau / D (T - M / D (1 - exp(-D T / M))).
+Which way: the virtual joint torques of the GPU potential-field paper (Kinect point clouds on a KUKA LWR): per-link
+forces and moments from the voxels within r_max of the arm's vertices, tau = sum_n J_n^T [f_n; m_n], through an
+admittance; or the kernel velocities of Baumgartner and Klančar ("Utilizing Convolution for Obstacle Avoidance during
+Robotic Manipulator Movement") at one point of interest per link, q' = sum_p J_p+ x'_p; either projected into the
+nullspace of the task. Our arms take position commands: the admittance M q'' + D q' = tau, run from rest for
+`horizon` T, gives the offset dq = tau / D (T - M / D (1 - exp(-D T / M))).
 
 How: a detour polyline, the path ahead shifted by dq (reached after `ramp` of arc, held for `hold`, back on the
 path after another `ramp`), spliced onto the running motion by the trajectory generator, so it starts in the
@@ -40,7 +41,7 @@ class Reflex:
         count = cfg.vertices if cfg.method == "forces" else 40 * len(robot.bodies)
         self.model = VertexModel.from_robot(robot, count, seed)
         self.field = ForceField(cfg.r_max, cfg.f_max)
-        # seed 001's points of interest: the centre of each link's vertices, in the frame the vertices are in
+        # Baumgartner and Klančar's points of interest: each link's vertices' centre, in the vertices' frame
         self._poi = [self.model.local[self.model.link == i].mean(axis=0) for i in range(len(self.model.links))]
         self._kernels: AvoidanceKernels | None = None
         self.last_push: np.ndarray | None = None  # the last offset before its cap [rad]

@@ -37,7 +37,7 @@ class CloudPublisher:
             config (CellConfig) also gives the depth noise, the forearm and the part; without `sim:`, defaults.
         publish: called from the rendering thread with (sensor name, CDR PointCloud2).
         static: (name, shape, pose) objects present in the simulated room.
-        rate_hz: frames per second per camera (rendering 240x180 takes ~18 ms on one core).
+        rate_hz: frames per second per camera (rendering holds one core for a while per frame).
         robot: a loaded model of cfg.robot (loaded here if not given).
         mirror_sim: also show the operator and the part where the physics sim says they are (`on_bodies`).
         seed: seeds the depth noise (`sim.noise`).

@@ -32,8 +32,8 @@ FLOOR_Z = -0.75  # the table top is at z = 0 in the base frame
 def collision_drawn(urdf: Path) -> Path:
     """A copy of the URDF whose links are drawn with their collision geometry (written once to the temp dir).
 
-    A depth camera drawing the panda's collision meshes renders ~2.5x faster than with its visual meshes (50x the
-    triangles); the silhouettes differ by millimetres, and the collision meshes are what the service checks anyway.
+    A depth camera drawing the panda's collision meshes renders much faster than with its visual meshes (many times
+    the triangles); the silhouettes differ by millimetres, and the collision meshes are what the service checks anyway.
     """
     urdf = Path(urdf).resolve()
     tag = hashlib.sha1(f"{urdf}:{urdf.stat().st_mtime_ns}".encode()).hexdigest()[:16]

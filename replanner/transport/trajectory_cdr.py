@@ -1,5 +1,5 @@
 """trajectory_msgs/JointTrajectory in CDR, in bulk: the same bytes as rosbags' serializer, without a Python object
-per point (rosbags took 205 ms for a 45 s slowed trajectory's 4,500 points, inside the monitor's check).
+per point (rosbags makes one for each of a long trajectory's thousands of points, inside the monitor's check).
 
 Every point after the first has one layout (CDR aligns to the payload, and each point ends 4 bytes past an 8-byte
 boundary), so the points after the first are one numpy record array (`_points_dtype`). The header and the first

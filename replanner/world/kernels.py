@@ -53,7 +53,7 @@ def _cell(x, origin, inv_cell, shift, n):
 @numba.njit(cache=True, nogil=True)
 def key_bounds(keys):
     """The least and the greatest of integer keys (M >= 1, 3) per axis, in one pass (numpy's reductions along axis
-    0 of three columns take ~10 x as long: 0.4 ms each for a person-sized map)."""
+    0 of three columns pass over the keys six times)."""
     lo, hi = keys[0].copy(), keys[0].copy()
     for i in range(1, keys.shape[0]):
         for j in range(3):
@@ -126,9 +126,10 @@ def count_cells(keys, key_min, ratio, n):
     sat = np.zeros((n[0] + 1, n[1] + 1, n[2] + 1), np.int32)
     for i in range(keys.shape[0]):
         sat[
-            (keys[i, 0] - key_min[0]) // ratio + 1, (keys[i, 1] - key_min[1]) // ratio + 1,
+            (keys[i, 0] - key_min[0]) // ratio + 1,
+            (keys[i, 1] - key_min[1]) // ratio + 1,
             (keys[i, 2] - key_min[2]) // ratio + 1,
-        ] += 1  # fmt: skip
+        ] += 1
     summed_volume(sat)
     return sat
 

@@ -221,9 +221,11 @@ class OccupancyMap:
         shape = lo.shape[:-1]
         out = np.empty(int(np.prod(shape)), dtype=bool)
         boxes_hit_table(
-            np.ascontiguousarray(lo.reshape(-1, 3)), np.ascontiguousarray(hi.reshape(-1, 3)), *self.broadphase_table(),
+            np.ascontiguousarray(lo.reshape(-1, 3)),
+            np.ascontiguousarray(hi.reshape(-1, 3)),
+            *self.broadphase_table(),
             out,
-        )  # fmt: skip
+        )
         return out.reshape(shape)
 
     def broadphase_table(self) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:

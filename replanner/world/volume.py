@@ -79,8 +79,10 @@ def voxels_in(sat, csat, key_min, inv_res, lo0, lo1, lo2, hi0, hi1, hi2):
     b2 = min(np.int64(np.floor(hi2 * inv_res)) - key_min[2], n2 - 1)
     if a0 > b0 or a1 > b1 or a2 > b2:
         return 0
-    if box_sum(csat, a0 // CBLOCK, a1 // CBLOCK, a2 // CBLOCK, b0 // CBLOCK + 1, b1 // CBLOCK + 1,
-                b2 // CBLOCK + 1) == 0:  # fmt: skip
+    if (
+        box_sum(csat, a0 // CBLOCK, a1 // CBLOCK, a2 // CBLOCK, b0 // CBLOCK + 1, b1 // CBLOCK + 1, b2 // CBLOCK + 1)
+        == 0
+    ):
         return 0
     return box_sum(sat, a0, a1, a2, b0 + 1, b1 + 1, b2 + 1)
 
@@ -113,6 +115,10 @@ def map_box(sat, key_min, inv_res):
         return np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
     c = 1.0 / inv_res
     return (
-        (key_min[0] - 1) * c, (key_min[1] - 1) * c, (key_min[2] - 1) * c, (key_min[0] + sat.shape[0]) * c,
-        (key_min[1] + sat.shape[1]) * c, (key_min[2] + sat.shape[2]) * c,
-    )  # fmt: skip
+        (key_min[0] - 1) * c,
+        (key_min[1] - 1) * c,
+        (key_min[2] - 1) * c,
+        (key_min[0] + sat.shape[0]) * c,
+        (key_min[1] + sat.shape[1]) * c,
+        (key_min[2] + sat.shape[2]) * c,
+    )

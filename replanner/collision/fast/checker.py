@@ -74,7 +74,7 @@ class FastChecker:
     # ------------------------------------------------------------------ the layers
     def layers(self) -> Layers:
         """The layers of the world as it is now: the spheres and the convex pass built once per world version (an edit
-        or an attachment, ~1 ms), the map's volume once per map."""
+        or an attachment), the map's volume once per map."""
         c = self._cache
         snap = self._exact.world.snapshot()  # asked thousands of times a plan: the scene only when it changed
         if c is not None and c.version is snap.version and c.occupancy is snap.occupancy:

@@ -1,5 +1,5 @@
 """The second pass of the planning layer: configurations the spheres could not decide, decided on the convex shapes
-FCL is given (world/gjk.py), compiled; near the map, by a finer cover of spheres tested exactly against the voxels
+FCL is given (fast/gjk.py), compiled; near the map, by a finer cover of spheres tested exactly against the voxels
 (free) and by balls inside the body grown by the padding (in contact). What it cannot decide (the map's closest
 misses, meshes that are not primitives, shapes within a micrometre of touching) stays FCL's.
 """
@@ -72,10 +72,27 @@ def decide_batch(
     return at the first contact (the rest stay 0)."""
     out = np.zeros(len(idx), np.int8)
     decide_all(
-        np.ascontiguousarray(frames), np.asarray(idx, np.int64), out, stop, cp.P, cp.D, cp.pfirst, cp.dfirst,
-        cp.supported, layer.env_pad, layer.self_pad, layer.map_pad, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b,
-        cp.hv_first, cp.hv_nb, cp.hv_start, layer.kernel_args(vol),
-    )  # fmt: skip
+        np.ascontiguousarray(frames),
+        np.asarray(idx, np.int64),
+        out,
+        stop,
+        cp.P,
+        cp.D,
+        cp.pfirst,
+        cp.dfirst,
+        cp.supported,
+        layer.env_pad,
+        layer.self_pad,
+        layer.map_pad,
+        cp.ob_R,
+        cp.ob_t,
+        cp.pair_a,
+        cp.pair_b,
+        cp.hv_first,
+        cp.hv_nb,
+        cp.hv_start,
+        layer.kernel_args(vol),
+    )
     return out
 
 
@@ -91,8 +108,9 @@ def _placed(F, P, k):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def fine_meets_map(F, C, rad, first, last, grow, fine_local, fine_rad, fine_ptr, fine_idx, sat, csat, key_min,
-                   inv_res) -> bool:  # fmt: skip
+def fine_meets_map(
+    F, C, rad, first, last, grow, fine_local, fine_rad, fine_ptr, fine_idx, sat, csat, key_min, inv_res
+) -> bool:
     """`spheres_meet_map` looked at again: the fine spheres (`SphereScene.fine_*`, placed by the body's frame F) of
     each placed sphere C[first:last] that may meet a voxel; whether any of those may."""
     for s in range(first, last):
@@ -176,9 +194,27 @@ def _merge(verdict, r):
 
 @numba.njit(cache=True, nogil=True)
 def decide_all(
-    frames, idx, out, stop, P, D, pfirst, dfirst, supported, env_pad, self_pad, map_pad, ob_R, ob_t, pair_a, pair_b,
-    hv_first, hv_nb, hv_start, L,
-):  # fmt: skip
+    frames,
+    idx,
+    out,
+    stop,
+    P,
+    D,
+    pfirst,
+    dfirst,
+    supported,
+    env_pad,
+    self_pad,
+    map_pad,
+    ob_R,
+    ob_t,
+    pair_a,
+    pair_b,
+    hv_first,
+    hv_nb,
+    hv_start,
+    L,
+):
     """`decide_batch`'s verdicts into out, L the sphere layer's `LayerArgs` (pair_a, pair_b: the scene's pairs)."""
     local, rad, first, in_local, in_rad, in_first = L.local, L.rad, L.first, L.in_local, L.in_rad, L.in_first
     ball_slot, ball_c, ball_r, gf, env_mask = L.ball_slot, L.ball_c, L.ball_r, L.gf, L.env_mask
@@ -216,10 +252,35 @@ def decide_all(
                     verdict = 0
                     continue
                 r = decide(
-                    POINTS, F[:3, :3], F[:3, 3], none, P, pfirst[b], pfirst[b + 1], D, dfirst[b], dfirst[b + 1],
-                    env_pad, ob_kind[o], ob_R[o], ob_t[o], ob_dim[o], 0, 0, 0, 0, 0.0, TOL, S, small, hv_first, hv_nb,
-                    hint, b, -1,
-                )  # fmt: skip
+                    POINTS,
+                    F[:3, :3],
+                    F[:3, 3],
+                    none,
+                    P,
+                    pfirst[b],
+                    pfirst[b + 1],
+                    D,
+                    dfirst[b],
+                    dfirst[b + 1],
+                    env_pad,
+                    ob_kind[o],
+                    ob_R[o],
+                    ob_t[o],
+                    ob_dim[o],
+                    0,
+                    0,
+                    0,
+                    0,
+                    0.0,
+                    TOL,
+                    S,
+                    small,
+                    hv_first,
+                    hv_nb,
+                    hint,
+                    b,
+                    -1,
+                )
                 verdict = _merge(verdict, r)
                 if verdict == -1:
                     break
@@ -233,12 +294,34 @@ def decide_all(
                         place_points(frames, n, ball_slot[b], local, first[b], first[b + 1], C)
                         placed[b] = True
                     if fine_meets_map(
-                        F, C, rad, first[b], first[b + 1], mg, fine_local, fine_rad, fine_ptr, fine_idx, sat, csat,
-                        key_min, inv_res,
-                    ):  # fmt: skip
+                        F,
+                        C,
+                        rad,
+                        first[b],
+                        first[b + 1],
+                        mg,
+                        fine_local,
+                        fine_rad,
+                        fine_ptr,
+                        fine_idx,
+                        sat,
+                        csat,
+                        key_min,
+                        inv_res,
+                    ):
                         verdict = 0
-                        if whole and inner_meets_map(F, in_local, in_rad, in_first[b], in_first[b + 1],
-                                                     map_pad - TOL, sat, csat, key_min, inv_res):  # fmt: skip
+                        if whole and inner_meets_map(
+                            F,
+                            in_local,
+                            in_rad,
+                            in_first[b],
+                            in_first[b + 1],
+                            map_pad - TOL,
+                            sat,
+                            csat,
+                            key_min,
+                            inv_res,
+                        ):
                             verdict = -1
                             break
         if verdict != -1:
@@ -260,10 +343,35 @@ def decide_all(
                     continue
                 Fa, Fb = frames[n, ball_slot[a]], frames[n, ball_slot[b]]
                 r = decide(
-                    POINTS, Fa[:3, :3], Fa[:3, 3], none, P, pfirst[a], pfirst[a + 1], D, dfirst[a], dfirst[a + 1],
-                    self_pad, POINTS, Fb[:3, :3], Fb[:3, 3], none, pfirst[b], pfirst[b + 1], dfirst[b], dfirst[b + 1],
-                    self_pad, TOL, S, small, hv_first, hv_nb, hint, a, b,
-                )  # fmt: skip
+                    POINTS,
+                    Fa[:3, :3],
+                    Fa[:3, 3],
+                    none,
+                    P,
+                    pfirst[a],
+                    pfirst[a + 1],
+                    D,
+                    dfirst[a],
+                    dfirst[a + 1],
+                    self_pad,
+                    POINTS,
+                    Fb[:3, :3],
+                    Fb[:3, 3],
+                    none,
+                    pfirst[b],
+                    pfirst[b + 1],
+                    dfirst[b],
+                    dfirst[b + 1],
+                    self_pad,
+                    TOL,
+                    S,
+                    small,
+                    hv_first,
+                    hv_nb,
+                    hint,
+                    a,
+                    b,
+                )
                 verdict = _merge(verdict, r)
                 if verdict == -1:
                     break

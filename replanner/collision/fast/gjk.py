@@ -14,7 +14,7 @@ import numpy as np
 from ..hulls import climb
 
 APART, TOUCH, BAND = 1, -1, 0  # what `decide` says of two shapes
-POINTS, BOX, BALL, CYLINDER = 3, 0, 1, 2  # shape kinds (the primitives' numbers are sphere_layer's)
+POINTS, BOX, BALL, CYLINDER = 3, 0, 1, 2  # shape kinds (the primitives' numbers are fast/layer.py's)
 MAX_ITER = 64
 
 
@@ -42,7 +42,7 @@ def _cross(a, b):
 def support(kind, R, t, dims, P, p0, p1, D, d0, d1, pad, d, first, nb, hint, h):
     """The point of a shape farthest along world direction d. R (3, 3), t (3,): shape -> world; POINTS: the points
     P[p0:p1] plus pad times the farthest of D[d0:d1] (shape frame), found by climbing the hull edges first, nb
-    (hull_graph.edge_graph) from hint[h], which is left at the answer; BOX: half extents dims; BALL: radius dims[0];
+    (hulls.edge_graph) from hint[h], which is left at the answer; BOX: half extents dims; BALL: radius dims[0];
     CYLINDER: radius dims[0], half length dims[1] along z."""
     x = R[0, 0] * d[0] + R[1, 0] * d[1] + R[2, 0] * d[2]
     y = R[0, 1] * d[0] + R[1, 1] * d[1] + R[2, 1] * d[2]
@@ -179,9 +179,34 @@ def _keep(S, a, b, c, m):
 
 @numba.njit(cache=True, nogil=True)
 def _apart(
-    ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada,
-    kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S, first, nb, hint, ha, hb,
-):  # fmt: skip
+    ka,
+    Ra,
+    ta,
+    dimsa,
+    P,
+    pa0,
+    pa1,
+    D,
+    da0,
+    da1,
+    pada,
+    kb,
+    Rb,
+    tb,
+    dimsb,
+    pb0,
+    pb1,
+    db0,
+    db1,
+    padb,
+    tol,
+    S,
+    first,
+    nb,
+    hint,
+    ha,
+    hb,
+):
     """1: apart by more than tol for certain; -1: they meet (origin inside the difference); 0: undecided."""
     d = (tb[0] - ta[0], tb[1] - ta[1], tb[2] - ta[2])  # from a toward b: a first point near the closest
     if d[0] == 0.0 and d[1] == 0.0 and d[2] == 0.0:
@@ -219,15 +244,66 @@ def _apart(
 
 @numba.njit(cache=True, nogil=True)
 def decide(
-    ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada,
-    kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S, dims_small, first, nb, hint, ha, hb,
-):  # fmt: skip
+    ka,
+    Ra,
+    ta,
+    dimsa,
+    P,
+    pa0,
+    pa1,
+    D,
+    da0,
+    da1,
+    pada,
+    kb,
+    Rb,
+    tb,
+    dimsb,
+    pb0,
+    pb1,
+    db0,
+    db1,
+    padb,
+    tol,
+    S,
+    dims_small,
+    first,
+    nb,
+    hint,
+    ha,
+    hb,
+):
     """APART (more than tol apart), TOUCH (they meet even with b shrunk by tol), or BAND (let FCL decide).
     first, nb, hint, ha, hb: `support`'s climb for a and b (their slots in hint; a primitive's is not read)."""
     r = _apart(
-        ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, kb, Rb, tb, dimsb, pb0, pb1, db0, db1, padb, tol, S, first,
-        nb, hint, ha, hb,
-    )  # fmt: skip
+        ka,
+        Ra,
+        ta,
+        dimsa,
+        P,
+        pa0,
+        pa1,
+        D,
+        da0,
+        da1,
+        pada,
+        kb,
+        Rb,
+        tb,
+        dimsb,
+        pb0,
+        pb1,
+        db0,
+        db1,
+        padb,
+        tol,
+        S,
+        first,
+        nb,
+        hint,
+        ha,
+        hb,
+    )
     if r == 1:
         return APART
     # shrink b by tol: primitives' dimensions, or a body's padding
@@ -245,7 +321,32 @@ def decide(
         if dims_small[0] <= 0.0 or (kb == CYLINDER and dims_small[1] <= 0.0):
             return BAND
     r = _apart(
-        ka, Ra, ta, dimsa, P, pa0, pa1, D, da0, da1, pada, kb, Rb, tb, dims_small, pb0, pb1, db0, db1, small_pad, 0.0,
-        S, first, nb, hint, ha, hb,
-    )  # fmt: skip
+        ka,
+        Ra,
+        ta,
+        dimsa,
+        P,
+        pa0,
+        pa1,
+        D,
+        da0,
+        da1,
+        pada,
+        kb,
+        Rb,
+        tb,
+        dims_small,
+        pb0,
+        pb1,
+        db0,
+        db1,
+        small_pad,
+        0.0,
+        S,
+        first,
+        nb,
+        hint,
+        ha,
+        hb,
+    )
     return TOUCH if r == -1 else BAND

@@ -1,4 +1,4 @@
-"""The fast, conservative layer of the collision checker: the robot (and what it carries) as spheres that cover
+"""The sphere layer, fast and conservative: the robot (and what it carries) as spheres that cover
 its bodies, static objects as primitives (boxes, spheres, cylinders exactly; other shapes as covering spheres),
 the occupancy map as a summed-volume table of its voxels. `classify` says which configurations are free (or in
 contact) for certain; FCL decides the rest, so every verdict stays FCL's and only the near misses pay for it.
@@ -30,8 +30,13 @@ CONTACT, UNSURE, FREE = -1, 0, 1  # what `SphereScene.classify` says of a config
 
 def _grow_factor(shape, polytope: float) -> float:
     """A padded shape reaches this many paddings beyond the shape at most: boxes grow at their corners."""
-    return math.sqrt(3.0) if isinstance(shape, Box) else math.sqrt(2.0) if isinstance(shape, Cylinder) else (
-        1.0 if isinstance(shape, Sphere) else polytope)  # fmt: skip
+    return (
+        math.sqrt(3.0)
+        if isinstance(shape, Box)
+        else math.sqrt(2.0)
+        if isinstance(shape, Cylinder)
+        else (1.0 if isinstance(shape, Sphere) else polytope)
+    )
 
 
 def _inradius_factor() -> float:
@@ -43,9 +48,10 @@ class SphereScene:
     """The sphere layer of one collision scene (read-only, shared by threads).
 
     Args:
+        robot: the robot model (its chain, and its self padding between two bodies).
         scene: the checker's scene of this world version (bodies, masks, self pairs).
         snap: the same world version (its objects' shapes and poses).
-        padding, map_padding, self_padding: the checker's paddings [m] (self: between two bodies).
+        padding, map_padding: the checker's paddings [m] from known objects and from the occupancy map.
     """
 
     def __init__(self, robot, scene: CollisionScene, snap: WorldSnapshot, padding: float, map_padding: float):
@@ -80,7 +86,7 @@ class SphereScene:
         self.env_pad, self.map_pad, self.self_pad = float(padding), float(map_padding), float(robot.self_body_padding)
         # how far a padding p takes each padded body beyond its shape, per p (geometry.padded)
         self.gf = np.array([_grow_factor(b.raw_shape, grow) for b in scene.bodies])
-        if (self.gf < 1.0).any():  # a padding grown by m must grow each sphere by m at least (motion_pass)
+        if (self.gf < 1.0).any():  # a padding grown by m must grow each sphere by m at least (fast/motion.py)
             raise RuntimeError(f"a body's padding grows it by less than the padding: factors {self.gf}")
         # self pairs of bodies; a body's spheres are first[b]:first[b + 1], inside a ball (slot, centre, radius)
         self.first = np.array(first, dtype=np.int64)
@@ -159,12 +165,40 @@ class SphereScene:
         if last is not None and last[0] is vol:
             return last[1]
         args = layer_args(
-            *self.fk, self.tab_i, self.tab_f, self.tab, self.local, self.radius, self.first, self.in_local, self.in_rad,
-            self.in_first, self.ball_slot, self.ball_c, self.ball_r, self.gf, self.env_mask, self.ob_kind, self.ob_inv,
-            self.ob_dim, self.ob_id, self.ob_exact, self.ob_box, self.octree_mask, vol.sat, vol.csat, vol.key_min,
-            vol.inv_res, self.pair_a, self.pair_b, self.fine_local, self.fine_rad, self.fine_ptr, self.fine_idx,
+            *self.fk,
+            self.tab_i,
+            self.tab_f,
+            self.tab,
+            self.local,
+            self.radius,
+            self.first,
+            self.in_local,
+            self.in_rad,
+            self.in_first,
+            self.ball_slot,
+            self.ball_c,
+            self.ball_r,
+            self.gf,
+            self.env_mask,
+            self.ob_kind,
+            self.ob_inv,
+            self.ob_dim,
+            self.ob_id,
+            self.ob_exact,
+            self.ob_box,
+            self.octree_mask,
+            vol.sat,
+            vol.csat,
+            vol.key_min,
+            vol.inv_res,
+            self.pair_a,
+            self.pair_b,
+            self.fine_local,
+            self.fine_rad,
+            self.fine_ptr,
+            self.fine_idx,
             vol.whole,
-        )  # fmt: skip
+        )
         self._args = (vol, args)  # one tuple: threads see the old pair or the new one
         return args
 

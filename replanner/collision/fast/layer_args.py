@@ -1,6 +1,6 @@
 """The sphere layer's arrays and a map's volume as one compiled object (`LayerArgs`): the compiled checks pass it,
 not 36 arrays. Python packs a call of over 30 arguments in a tuple, and numba then counts references of every array
-in it: ~1 us a call, as much as a configuration's own check."""
+in it, as much work as a configuration's own check."""
 
 from __future__ import annotations
 
@@ -9,11 +9,43 @@ from numba.core import types
 from numba.experimental import structref
 
 _FIELDS = (
-    "Fj", "prismatic", "joints", "parents", "tab_i", "tab_f", "table", "local", "rad", "first", "in_local", "in_rad",
-    "in_first", "ball_slot", "ball_c", "ball_r", "gf", "env_mask", "ob_kind", "ob_inv", "ob_dim", "ob_id", "ob_exact",
-    "ob_box", "octree_mask", "sat", "csat", "key_min", "inv_res", "pair_a", "pair_b", "fine_local", "fine_rad",
-    "fine_ptr", "fine_idx", "whole",
-)  # fmt: skip
+    "Fj",
+    "prismatic",
+    "joints",
+    "parents",
+    "tab_i",
+    "tab_f",
+    "table",
+    "local",
+    "rad",
+    "first",
+    "in_local",
+    "in_rad",
+    "in_first",
+    "ball_slot",
+    "ball_c",
+    "ball_r",
+    "gf",
+    "env_mask",
+    "ob_kind",
+    "ob_inv",
+    "ob_dim",
+    "ob_id",
+    "ob_exact",
+    "ob_box",
+    "octree_mask",
+    "sat",
+    "csat",
+    "key_min",
+    "inv_res",
+    "pair_a",
+    "pair_b",
+    "fine_local",
+    "fine_rad",
+    "fine_ptr",
+    "fine_idx",
+    "whole",
+)
 
 
 class Unliteral(types.StructRef):
@@ -29,7 +61,7 @@ class _LayerArgsType(Unliteral):
 
 
 class LayerArgs(structref.StructRefProxy):
-    """`SphereScene.kernel_args`: fields as named in `_FIELDS` (world/sphere_layer.py builds it)."""
+    """`SphereScene.kernel_args`: fields as named in `_FIELDS` (fast/layer.py builds it)."""
 
 
 structref.define_proxy(LayerArgs, _LayerArgsType, list(_FIELDS))

@@ -1,5 +1,5 @@
 """One straight motion through the sphere layer in one compiled call: the configurations a path check would
-interpolate (collision.interpolate's: world/sweep.py), classified in turn, every 8th first, stopping at the first
+interpolate (collision/sweep.py), classified in turn, every 8th first, stopping at the first
 certain contact. Anchors checked with a wider margin clear their neighbours without a check of their own (a plan's
 motions run at a few millimetres' resolution). The planner checks thousands of motions a plan; this keeps Python out
 of each one, the convex pass on what the spheres leave included (`BoundMotion.decided`)."""
@@ -24,10 +24,32 @@ STRIDE = 8  # every 8th configuration first: a contact is usually found early
 AHEAD = 0.02  # [m] the margin of an anchor's check: free with it, its neighbours within that travel are too
 OUTSIDE = -2  # what `BoundMotion` says of a motion with an end outside the joint limits
 _FIELDS = (
-    "lo", "hi", "sw_slot", "sw_centre", "sw_radius", "sw_moves", "sw_beyond", "reach", "layer_reach", "env_pad",
-    "map_pad", "self_pad", "L", "P", "D", "pfirst", "dfirst",
-    "supported", "ob_R", "ob_t", "cpair_a", "cpair_b", "hv_first", "hv_nb", "hv_start",
-)  # fmt: skip
+    "lo",
+    "hi",
+    "sw_slot",
+    "sw_centre",
+    "sw_radius",
+    "sw_moves",
+    "sw_beyond",
+    "reach",
+    "layer_reach",
+    "env_pad",
+    "map_pad",
+    "self_pad",
+    "L",
+    "P",
+    "D",
+    "pfirst",
+    "dfirst",
+    "supported",
+    "ob_R",
+    "ob_t",
+    "cpair_a",
+    "cpair_b",
+    "hv_first",
+    "hv_nb",
+    "hv_start",
+)
 
 
 @structref.register
@@ -54,22 +76,49 @@ class BoundMotion:
     """
 
     def __init__(
-        self, robot, layer: SphereScene, vol: VoxelVolume, lo, hi, sweep: Sweep, ahead: float = AHEAD,
+        self,
+        robot,
+        layer: SphereScene,
+        vol: VoxelVolume,
+        lo,
+        hi,
+        sweep: Sweep,
+        ahead: float = AHEAD,
         convex: ConvexPass | None = None,
-    ):  # fmt: skip
+    ):
         limits = lo is not None
         dof = robot.dof
         self.ahead = float(ahead)
         self.args = (
             np.asarray(lo if limits else np.full(dof, -np.inf), np.float64),
             np.asarray(hi if limits else np.full(dof, np.inf), np.float64),
-            *sweep.args[4:], layer.reach, layer.env_pad, layer.map_pad, layer.self_pad, layer.kernel_args(vol),
-        )  # fmt: skip
+            *sweep.args[4:],
+            layer.reach,
+            layer.env_pad,
+            layer.map_pad,
+            layer.self_pad,
+            layer.kernel_args(vol),
+        )
         cp = convex
-        self.bound = None if cp is None else _bind(
-            *self.args, cp.P, cp.D, cp.pfirst, cp.dfirst, cp.supported, cp.ob_R, cp.ob_t, cp.pair_a, cp.pair_b,
-            cp.hv_first, cp.hv_nb, cp.hv_start,
-        )  # fmt: skip
+        self.bound = (
+            None
+            if cp is None
+            else _bind(
+                *self.args,
+                cp.P,
+                cp.D,
+                cp.pfirst,
+                cp.dfirst,
+                cp.supported,
+                cp.ob_R,
+                cp.ob_t,
+                cp.pair_a,
+                cp.pair_b,
+                cp.hv_first,
+                cp.hv_nb,
+                cp.hv_start,
+            )
+        )
 
     def with_ahead(self, ahead: float) -> BoundMotion:
         """The same check with another anchor margin `ahead` [m] (0: every configuration on its own)."""
@@ -87,7 +136,7 @@ class BoundMotion:
         return _sphere_motion(a, b, resolution, self.ahead, given, *self.args)
 
     def decided(self, a: np.ndarray, b: np.ndarray, resolution: float, given: int = 0) -> tuple[int, np.ndarray]:
-        """(verdict, rest) of the same motion with the convex pass (world/convex_pass.py, given at construction) on
+        """(verdict, rest) of the same motion with the convex pass (fast/convex.py, given at construction) on
         what the spheres left, in the same compiled call: verdict as `__call__`'s, and rest (r, dof) the
         configurations neither decided, FCL's to check. The verdicts of `__call__` then `decide_batch`."""
         return _decided_bound(a, b, resolution, self.ahead, given, self.bound)
@@ -103,9 +152,25 @@ def _decided_bound(a, b, resolution, ahead, given, m):
     """`BoundMotion.decided` of the arguments bound in m: the spheres, then the convex pass on what they left."""
     L = m.L
     v, unsure, Q = _sphere_motion(
-        a, b, resolution, ahead, given, m.lo, m.hi, m.sw_slot, m.sw_centre, m.sw_radius, m.sw_moves, m.sw_beyond,
-        m.reach, m.layer_reach, m.env_pad, m.map_pad, m.self_pad, L,
-    )  # fmt: skip
+        a,
+        b,
+        resolution,
+        ahead,
+        given,
+        m.lo,
+        m.hi,
+        m.sw_slot,
+        m.sw_centre,
+        m.sw_radius,
+        m.sw_moves,
+        m.sw_beyond,
+        m.reach,
+        m.layer_reach,
+        m.env_pad,
+        m.map_pad,
+        m.self_pad,
+        L,
+    )
     u = unsure.shape[0]
     if v != 1 or u == 0:
         return v, Q[:0]
@@ -114,9 +179,27 @@ def _decided_bound(a, b, resolution, ahead, given, m):
         frames_of(Q, unsure[i], L.Fj, L.prismatic, L.joints, L.parents, frames, i)
     out = np.zeros(u, np.int8)
     decide_all(
-        frames, np.arange(u), out, True, m.P, m.D, m.pfirst, m.dfirst, m.supported, m.env_pad, m.self_pad, m.map_pad,
-        m.ob_R, m.ob_t, m.cpair_a, m.cpair_b, m.hv_first, m.hv_nb, m.hv_start, L,
-    )  # fmt: skip
+        frames,
+        np.arange(u),
+        out,
+        True,
+        m.P,
+        m.D,
+        m.pfirst,
+        m.dfirst,
+        m.supported,
+        m.env_pad,
+        m.self_pad,
+        m.map_pad,
+        m.ob_R,
+        m.ob_t,
+        m.cpair_a,
+        m.cpair_b,
+        m.hv_first,
+        m.hv_nb,
+        m.hv_start,
+        L,
+    )
     rest = np.empty((u, a.shape[0]))
     r = 0
     for i in range(u):
@@ -130,9 +213,25 @@ def _decided_bound(a, b, resolution, ahead, given, m):
 
 @numba.njit(cache=True, nogil=True)
 def _sphere_motion(
-    a, b, resolution, ahead, given, lo, hi, slot, centre, radius, moves, beyond, reach, layer_reach, env_pad, map_pad,
-    self_pad, L,
-):  # fmt: skip
+    a,
+    b,
+    resolution,
+    ahead,
+    given,
+    lo,
+    hi,
+    slot,
+    centre,
+    radius,
+    moves,
+    beyond,
+    reach,
+    layer_reach,
+    env_pad,
+    map_pad,
+    self_pad,
+    L,
+):
     """(verdict, unsure, Q): BoundMotion's answer and the motion's configurations Q (steps + 1, dof)."""
     for j in range(a.shape[0]):
         if not (lo[j] <= a[j] <= hi[j] and lo[j] <= b[j] <= hi[j]):

@@ -100,9 +100,11 @@ def refined(placed: list[tuple[Shape, np.ndarray]]) -> tuple[np.ndarray, np.ndar
         index.append(rf.index + nf)
         nf, ne = nf + len(rf.radius), ne + len(rf.index)
     return (
-        np.ascontiguousarray(np.concatenate(center)).reshape(-1, 3), np.concatenate(radius),
-        np.concatenate([*ptr, [ne]]).astype(np.int64), np.concatenate(index).astype(np.int64),
-    )  # fmt: skip
+        np.ascontiguousarray(np.concatenate(center)).reshape(-1, 3),
+        np.concatenate(radius),
+        np.concatenate([*ptr, [ne]]).astype(np.int64),
+        np.concatenate(index).astype(np.int64),
+    )
 
 
 def _cover(shape: Shape, tolerance: float, max_depth: int) -> Spheres:
