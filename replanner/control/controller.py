@@ -1,7 +1,8 @@
-"""The reactive controller: a state machine (`transitions`) that owns every decision (paper 002, section 4.2).
+"""The reactive controller: a state machine (`transitions`) that owns every decision, after the KineoWorks
+reactive-planning paper's (its section 4.2).
 
 WAITING → PLANNING → MONITORING → MONITORING_WITH_PLANNING_PENDING → (spliced | clear again | brake), and
-HOLDING for the `wait_and_resume` policy (paper 002's robot waited for the operator to leave).
+HOLDING for the `wait_and_resume` policy (the paper's robot waited for the operator to leave).
 
 Every input goes through one queue (joint states, map updates, goals, cancels, plan answers) and is handled by
 `step`, run by the controller's thread or by a test that drives the clock: callbacks never block and no decision
@@ -27,21 +28,22 @@ from ..planning import GoalInvalid, Planner, StartInvalid
 from ..planning.worker import JobPurpose, PlanAnswer, PlanJob, PlanWorker
 from ..sections import AfterBrake, ControllerConfig, Reaction
 from ..trajectory import Trajectory, TrajectoryError, TrajectoryGenerator
+from .cadence import CheckClock
 from .goals import Goal, GoalHandle, GoalResult, GoalStatus
 from .history import History, TransitionRecord
-from .holding import Holding
+from .holding import Act, Decision, Hold, speed_refusal
 from .inbox import Inbox, Input
 from .latency import LatencyAccount
 from .liveness import Liveness, off_record
 from .moves import Moves
+from .pending import Pending
 from .states import State, edges
 from .swerves import Swerves
 
 log = logging.getLogger(__name__)
-MAP_CHECK_GAP = 0.002  # [s] a new map is checked this soon after the last check, whatever the check rate
 
 
-class Controller(Holding):
+class Controller:
     """Reactive execution of goals for one robot.
 
     Args:
@@ -54,6 +56,8 @@ class Controller(Holding):
         clock: time source [s] shared with the robot driver and the sensors.
         latency: the account of the reaction chain (the speed-and-separation check reads its T_r).
     """
+
+    state: State  # set by the machine
 
     def __init__(
         self,
@@ -71,7 +75,7 @@ class Controller(Holding):
         default_deadline: float = 1.0,
         latency: LatencyAccount | None = None,
     ):
-        self.robot, self.checker, self.planner, self.gen = robot, checker, planner, generator
+        self.robot, self.checker, self.planner = robot, checker, planner
         self.monitor, self.worker, self.cfg, self.clock = monitor, worker, cfg, clock
         self.default_deadline, self.sensors = default_deadline, tuple(sensors)
         if not self.sensors:
@@ -81,8 +85,8 @@ class Controller(Holding):
         self.swerve = Swerves(robot, cfg.reflex, checker, self.moves, self.log_event) if cfg.reaction.swerves else None
         self.machine = Machine(
             model=self,
-            states=[s.value for s in State],
-            initial=State.WAITING.value,
+            states=State,
+            initial=State.WAITING,
             send_event=True,
             auto_transitions=False,
             after_state_change="_record",
@@ -95,20 +99,36 @@ class Controller(Holding):
         self._handle: GoalHandle | None = None
         self.liveness = Liveness(self.sensors, cfg.joint_state_timeout, cfg.sensor_timeout)
         self.latency = latency or LatencyAccount()
-        self._dirty, self._new_map, self._last_check = False, False, -math.inf
-        self._check_gap = 0.0  # recent gap between checks, decaying [s]
-        self._retry_at: float | None = None
-        self._clear_count, self._clear_since = 0, 0.0  # checks in a row the path was clear, since when
-        self._pending_since = self._hold_since = self._hold_planned = 0.0
-        self._settle_until = math.inf
-        self._resumable, self.last_clearance = True, None  # held on its own path: it may resume it once clear
+        self._checks = CheckClock(1.0 / cfg.check_rate_hz)
+        self._pending: Pending | None = None  # while PENDING
+        self._hold: Hold | None = None  # while HOLDING
+        self._settle_until = math.inf  # [s] when a path that ended short of its goal has failed
+        self.last_clearance: float | None = None
         self.tracking_error: float | None = None  # [rad] measured arm vs the record at its stamp (last check)
+
+    # ------------------------------------------------------------------ bookkeeping that lives as long as its state
+    # the machine calls on_enter_<name>/on_exit_<name> (a State member's name) as it enters and leaves that state
+    def on_enter_PLANNING(self, event) -> None:
+        self._settle_until = math.inf  # a new path: the settle clock starts at its end
+
+    def on_enter_PENDING(self, event) -> None:
+        self._pending = Pending(event.kwargs["now"])
+
+    def on_exit_PENDING(self, event) -> None:
+        self._pending = None
+
+    def on_enter_HOLDING(self, event) -> None:
+        self._hold = Hold(event.kwargs["now"], self.cfg, self.monitor, self.liveness)
+
+    def on_exit_HOLDING(self, event) -> None:
+        self._hold = None
 
     # ------------------------------------------------------------------ observers and history
     def _record(self, event) -> None:
         goal = self._handle.id if self._handle else None
         t = event.transition
-        rec = TransitionRecord(self.clock(), t.source, t.dest, event.event.name, event.kwargs.get("reason", ""), goal)
+        source, dest = State[t.source].value, State[t.dest].value  # the machine knows states by name, the wire by value
+        rec = TransitionRecord(self.clock(), source, dest, event.event.name, event.kwargs.get("reason", ""), goal)
         self.history.transition(rec)
 
     def log_event(self, what: str, **details) -> None:
@@ -181,35 +201,29 @@ class Controller(Holding):
 
     def _tick(self) -> None:
         now = self.clock()
-        period = 1.0 / self.cfg.check_rate_hz  # a new map is looked at at once: a wait would add to T_r
-        if self._dirty and now - self._last_check >= (min(period, MAP_CHECK_GAP) if self._new_map else period):
-            self._dirty = False
-            gap = now - self._last_check if self._last_check > -math.inf else 0.0
-            if not (self._new_map and gap < period):  # the next check may still be a whole period away
-                self._check_gap = min(max(gap, 0.9 * self._check_gap), 0.25)  # a stall is the watchdogs' case
-            self._new_map, self._last_check = False, now
-            sent, watching = self.moves.sent, self.state not in (State.WAITING.value, State.PLANNING.value)
+        if (gap := self._checks.due(now)) is not None:
+            sent, watching = self.moves.sent, self.state not in (State.WAITING, State.PLANNING)
             self._check(now)
             done = self.clock()
             self.latency.checked(done, gap, watching)
             if self.moves.sent != sent:
                 self.latency.command_sent(done, now)
-        if self.state != State.WAITING.value and (why := self.liveness.silent(self.clock())) is not None:
+        if self.state is not State.WAITING and (why := self.liveness.silent(self.clock())) is not None:
             self._safe_stop(why)
 
     def _handle_input(self, kind: Input, data) -> None:
         if kind is Input.JOINT_STATE:
-            self._dirty = True
+            self._checks.joint_state()
             # a picked part may rest on its support until it has left it by more than the safety padding
             padding = max(self.cfg.safety_distance, self.checker.padding) + 0.005
             for name, sup in self.checker.world.release_support(data.position, padding):
                 log.info("%s has left %s: it is checked against it again", name, sup)
         elif kind is Input.MAP:
-            self._dirty = self._new_map = True
+            self._checks.map()
         elif kind is Input.GOAL:
             self._start_goal(data)
         elif kind is Input.CANCEL:
-            if self._handle is not None and self._handle.id == data and self.state != State.WAITING.value:
+            if self._handle is not None and self._handle.id == data and self.state is not State.WAITING:
                 self.moves.brake()
                 self._finish(GoalStatus.CANCELED, "canceled by the client")
                 self.canceled(reason="canceled by the client")
@@ -226,7 +240,7 @@ class Controller(Holding):
             reason = f"goal id {handle.id!r} is already active; use a new id"
         else:
             reason = self.liveness.silent(self.clock(), ready=True)
-        if reason is None and self.state == State.WAITING.value:  # a robot that stopped on its own: plan from there
+        if reason is None and self.state is State.WAITING:  # a robot that stopped on its own: plan from there
             reason = self.moves.settle(self.liveness.last_js[1], self.cfg.tracking_tolerance)
         if reason is None:
             try:
@@ -246,9 +260,8 @@ class Controller(Holding):
             self._finish(GoalStatus.PREEMPTED, f"preempted by goal {handle.id!r}")
         handle.accept(q_goal)
         self._handle, self.monitor.padding = handle, handle.goal.padding  # the monitor looks at its path with it
-        self._settle_until = math.inf
         now = self.clock()
-        if self.state == State.WAITING.value and not self.moves.timeline.busy(now):
+        if self.state is State.WAITING and not self.moves.timeline.busy(now):
             err = float(np.abs(self.measured() - q_goal).max())
             if err <= self.cfg.goal_tolerance:  # nothing to plan: a path needs two distinct points
                 self._finish(GoalStatus.SUCCEEDED, f"already at the goal (within {err:.4f} rad)")
@@ -309,7 +322,7 @@ class Controller(Holding):
         if answer.error is not None:
             self._plan_error(job, answer.error)
             return
-        if job.purpose is JobPurpose.HOLD and self.state == State.HOLDING.value:
+        if job.purpose is JobPurpose.HOLD and self.state is State.HOLDING:
             why = self._start_blocked(answer.trajectory, now)
             if why is not None:  # people came closer while it planned: the next check would only stop it again
                 self.log_event("plan_dropped", purpose=job.purpose.value, job=job.id, why=why)
@@ -325,33 +338,31 @@ class Controller(Holding):
             spliced=job.base is not None,
         )
         state = self.state
-        if job.purpose is JobPurpose.REPLAN and state == State.PENDING.value:
+        if job.purpose is JobPurpose.REPLAN and state is State.PENDING:
             self.spliced(reason=f"replan spliced at +{start - now:.3f} s ({len(res.path)} waypoints)")
-        elif job.purpose is JobPurpose.GOAL and state == State.PLANNING.value:
-            self._settle_until = math.inf
+        elif job.purpose is JobPurpose.GOAL and state is State.PLANNING:
             self.start_motion(reason=f"trajectory of {answer.trajectory.duration:.2f} s sent")
-        elif job.purpose is JobPurpose.HOLD and state == State.HOLDING.value:
+        elif job.purpose is JobPurpose.HOLD and state is State.HOLDING:
             self.start_motion(reason="a new path around the obstacle")
 
     def _plan_error(self, job: PlanJob, err: Exception) -> None:
         now, state = self.clock(), self.state
         self.log_event("plan_error", purpose=job.purpose.value, job=job.id, error=str(err))
-        if job.purpose is JobPurpose.GOAL and state == State.PLANNING.value:
+        if job.purpose is JobPurpose.GOAL and state is State.PLANNING:
             self.moves.brake()
             self._finish(GoalStatus.FAILED, f"planning failed: {err}")
             self.plan_failed(reason=str(err))
-        elif job.purpose is JobPurpose.REPLAN and state == State.PENDING.value:
+        elif job.purpose is JobPurpose.REPLAN and state is State.PENDING:
             if isinstance(err, StartInvalid):  # where the arm would be when the plan lands is not free: stop
                 self._safety_brake(f"the path is blocked just ahead ({err})")
-            elif now - self._pending_since + self.cfg.replan_deadline >= self.cfg.pending_timeout:
+            elif now - self._pending.since + self.cfg.replan_deadline >= self.cfg.pending_timeout:
                 self._safety_brake(f"replanning failed: {err}")
             elif isinstance(err, GoalInvalid):  # the goal itself is blocked: keep watching, try again shortly
-                self._retry_at = now + 0.1
+                self._pending.retry_at = now + 0.1
             else:
                 self._launch(JobPurpose.REPLAN, self.cfg.replan_deadline)
-        elif job.purpose is JobPurpose.HOLD and state == State.HOLDING.value and isinstance(err, StartInvalid):
-            self._retreat(str(err))
-        # a failed hold replan: keep holding, the next attempt comes after hold_replan_interval
+        elif job.purpose is JobPurpose.HOLD and state is State.HOLDING:
+            self._on_hold(self._hold.plan_failed(err))
 
     # ------------------------------------------------------------------ stopping
     def _safety_brake(self, reason: str) -> None:
@@ -361,10 +372,7 @@ class Controller(Holding):
             self._finish(GoalStatus.FAILED, reason)
             self.brake_and_abort(reason=reason)
         else:
-            self._hold_since = self._hold_planned = self.clock()
-            self._clear_count = 0
-            self._resumable = True
-            self.brake_and_hold(reason=reason)
+            self.brake_and_hold(reason=reason, now=self.clock())
 
     def _safe_stop(self, reason: str) -> None:
         self._cancel_job()
@@ -372,20 +380,20 @@ class Controller(Holding):
             self.moves.brake()
         except Exception:
             log.exception("brake failed")
-        if self.state != State.WAITING.value:
+        if self.state is not State.WAITING:
             self._finish(GoalStatus.FAILED, reason)
             self.fault(reason=reason)
 
     # ------------------------------------------------------------------ monitoring
     def _check(self, now: float) -> None:
         state = self.state
-        if state in (State.WAITING.value, State.PLANNING.value) or self.liveness.last_js is None:
+        if state in (State.WAITING, State.PLANNING) or self.liveness.last_js is None:
             return
         if self.cfg.reaction == Reaction.NONE:  # the comparison baseline: plan once, never look again
             self._reached(now)
             return
         js = self.liveness.last_js[1]
-        holding, q = state == State.HOLDING.value, self.moves.resync(js.position, js.stamp, js.velocity)  # late
+        holding, q = state is State.HOLDING, self.moves.resync(js.position, js.stamp, js.velocity)  # late
         self.tracking_error, why = off_record(
             js, self.moves.timeline, self.robot.joint_names, self.cfg.tracking_tolerance
         )
@@ -393,7 +401,7 @@ class Controller(Holding):
             self._safe_stop(why)
             return
         # holding: the way to the goal, not the stretch the brake still travels
-        view = self.monitor.view(self.moves.timeline, now, q, to_curve_end=holding, check_gap=self._check_gap)
+        view = self.monitor.view(self.moves.timeline, now, q, to_curve_end=holding, check_gap=self._checks.gap)
         if view is None:
             return
         if holding:
@@ -409,23 +417,22 @@ class Controller(Holding):
         if speed.speed_factor < self.cfg.speed_separation.min_speed_share:
             self._safety_brake(f"speed and separation allow {speed.speed_factor:.0%} of the speed: stop and hold")
             return
-        if state == State.MONITORING.value:
+        if state is State.MONITORING:
             blocking = self.monitor.check_path(view).blocking
             if blocking is not None and self.cfg.reaction == Reaction.STOP_AND_WAIT:
                 self._safety_brake(f"{blocking.reason}: stop, wait, then plan from rest")
             elif blocking is not None:
-                self._pending_since, self._clear_count, self._retry_at = now, 0, None
                 self.log_event("blocked", check=blocking.check)
                 self._reflex(now, "blocked", launch=False, urgent=True)  # first: the replan starts from the swerve
                 self._set_speed(min(speed.speed_factor, self.cfg.pending_speed_factor))
                 if self.cfg.reaction.replans:
                     self._launch(JobPurpose.REPLAN, self.cfg.replan_deadline)
-                self.blocked(reason=blocking.reason)
+                self.blocked(reason=blocking.reason, now=now)
             else:
                 if speed.speed_factor < 1.0:  # speed and separation would slow the arm: move away as well
                     self._reflex(now, "close", launch=False)
                 self._set_speed(speed.speed_factor)
-        elif state == State.PENDING.value:
+        elif state is State.PENDING:
             self._check_pending(now, view, speed.speed_factor)
 
     def _reflex(self, now: float, why: str, launch: bool, urgent: bool = False) -> None:
@@ -438,27 +445,58 @@ class Controller(Holding):
             self.log_event("speed", factor=round(factor, 3), was=round(was, 3))
 
     def _check_pending(self, now: float, view, speed_factor: float) -> None:
+        pending = self._pending
         clear = self.monitor.check_path(view).clear
         stop = self.monitor.check_close(view, path_clear=clear).blocking
         if stop is not None:
             self.last_clearance = stop.clearance if stop.clearance is not None else self.last_clearance
             self._safety_brake(stop.reason)
-        elif now - self._pending_since > self.cfg.pending_timeout:
+        elif now - pending.since > self.cfg.pending_timeout:
             self._safety_brake(f"no new path within {self.cfg.pending_timeout} s")
         else:
-            if not clear and self._retry_at is not None and now >= self._retry_at and self._job is None:
-                self._retry_at = None
+            if not clear and self._job is None and pending.retry_due(now):
                 self._launch(JobPurpose.REPLAN, self.cfg.replan_deadline)
-            self._clear_count = self._clear_count + 1 if clear else 0
+            clear_count = pending.count(clear)
             if not clear or speed_factor < 1.0:
                 self._reflex(now, "blocked" if not clear else "close", launch=True)
-            if self._clear_count >= self.cfg.clear_checks:
+            if clear_count >= self.cfg.clear_checks:
                 self._cancel_job()
                 self.log_event("replan_canceled")
                 self._set_speed(speed_factor)
-                self.path_clear(reason=f"the path was clear for {self._clear_count} checks")
+                self.path_clear(reason=f"the path was clear for {clear_count} checks")
             else:
                 self._set_speed(min(speed_factor, self.cfg.pending_speed_factor))
+
+    # ------------------------------------------------------------------ holding
+    def _check_holding(self, now: float, view) -> None:
+        self._on_hold(self._hold.check(now, view, self.moves.timeline.moving(now), planning=self._job is not None))
+
+    def _on_hold(self, decision: Decision) -> None:
+        """Do what the hold decided."""
+        if decision.act is Act.RESUME:
+            self.moves.resume()
+            self.resume(reason=decision.reason)
+        elif decision.act is Act.GIVE_UP:
+            self._finish(GoalStatus.FAILED, f"the path stayed blocked for {self.cfg.hold_timeout} s")
+            self.give_up(reason=decision.reason)
+        elif decision.act is Act.PLAN_AROUND:
+            self._launch(JobPurpose.HOLD, self._deadline())
+        elif decision.act is Act.RETREAT:
+            self._retreat(decision.reason)
+
+    def _retreat(self, why: str) -> None:
+        """Stopped where no plan can start: back off along its own curve (see Moves.escape), never stuck."""
+        arc = self.moves.escape()
+        if arc is None:
+            self.log_event("stuck", why=why)
+        else:
+            self.log_event("retreat", arc=arc, why=why)
+            self._hold.left_path()
+
+    def _start_blocked(self, traj, now: float) -> str | None:
+        """Why a new path from rest may not start now (speed and separation would stop it at once), or None."""
+        q, share = self.measured(), self.cfg.speed_separation.min_speed_share
+        return None if q is None else speed_refusal(self.monitor.check_start(traj, now, q), share)
 
     def _reached(self, now: float) -> bool:
         if self.moves.timeline.busy(now):
@@ -483,10 +521,10 @@ class Controller(Holding):
     def status(self) -> dict:
         h, now = self.active_goal(), self.clock()
         view = None
-        if self.state not in (State.WAITING.value, State.PLANNING.value) and self.liveness.last_js is not None:
+        if self.state not in (State.WAITING, State.PLANNING) and self.liveness.last_js is not None:
             view = self.monitor.view(self.moves.timeline, now, self.measured())
         return {
-            "state": self.state,
+            "state": self.state.value,
             "goal_id": h.id if h is not None else None,
             "progress": view.progress if view is not None else None,
             "perception": list(self.sensors) or "none: static objects only",

@@ -1,65 +1,102 @@
-"""HOLDING: the arm braked on its path and waits; it resumes once the path is clear, plans around from rest, backs
-off where no plan can start, or gives up (part of the controller, apart for its size)."""
+"""HOLDING's decisions: resume once the path is clear, plan around from rest, back off, or give up."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from enum import Enum
 
-from ..planning.worker import JobPurpose
-from ..sections import Reaction
-from .goals import GoalStatus
+from ..monitor import Monitor
+from ..planning import StartInvalid
+from ..sections import ControllerConfig, Reaction
+from .liveness import Liveness
 
 
-class Holding:
-    """The controller's HOLDING decisions (mixed into `Controller`, whose state they read and change)."""
+class Act(Enum):
+    KEEP_HOLDING = "keep_holding"
+    RESUME = "resume"  # along its own path, now clear
+    PLAN_AROUND = "plan_around"  # a new path from rest
+    RETREAT = "retreat"  # back off along its own curve: no plan can start where it stands
+    GIVE_UP = "give_up"  # the goal fails
 
-    def _check_holding(self, now: float, view) -> None:
-        moving, clear = self.moves.timeline.moving(now), self.monitor.check_path(view).clear
-        self._clear_since = now if clear and self._clear_count == 0 else self._clear_since
-        self._clear_count = self._clear_count + 1 if clear else 0
+
+@dataclass(frozen=True)
+class Decision:
+    act: Act
+    reason: str
+
+
+def speed_refusal(speed, min_speed_share: float) -> str | None:
+    """Why the speed checks' report `speed` stops the arm (too close even at rest, or too slow), or None."""
+    if speed.blocking is not None:
+        return speed.blocking.reason
+    if speed.speed_factor < min_speed_share:
+        return f"speed and separation allow {speed.speed_factor:.0%} of the speed"
+    return None
+
+
+class Hold:
+    """HOLDING's bookkeeping and decisions: made on entering HOLDING, dropped on leaving it.
+
+    Args:
+        since: when the arm braked [controller clock s].
+        cfg: the controller config section.
+        monitor: judges the way to the goal.
+        liveness: tells whether every camera has sent a frame since a given time.
+    """
+
+    def __init__(self, since: float, cfg: ControllerConfig, monitor: Monitor, liveness: Liveness):
+        self.cfg, self.monitor, self.liveness = cfg, monitor, liveness
+        self.since = self.planned = since  # planned: when it last planned around
+        self.clear_count, self.clear_since = 0, since  # checks in a row the path was clear, since when
+        self.resumable = True  # held on its own path: it may resume it once clear
+
+    def check(self, now: float, view, moving: bool, planning: bool) -> Decision:
+        """What to do after a look at the way to the goal; `moving`: still braking; `planning`: a plan is in flight."""
+        clear = self.monitor.check_path(view).clear
+        self.clear_since = now if clear and self.clear_count == 0 else self.clear_since
+        self.clear_count = self.clear_count + 1 if clear else 0
         room = moving or self.monitor.check_speed(view, 0.1).blocking is None  # may it move (people near)? at rest
         # clear for some checks and in a new frame of every camera (cameras may disagree on a voxel, frame by frame)
-        seen = self._clear_count >= self.cfg.clear_checks and self.liveness.seen_all_since(self._clear_since)
-        if self._resumable and seen and not moving and room:
+        seen = self.clear_count >= self.cfg.clear_checks and self.liveness.seen_all_since(self.clear_since)
+        refused = None
+        if self.resumable and seen and not moving and room:
             # everything that can block, nothing remembered, people's distance fresh: no resume into a blocked path
             final = self.monitor.check_path(view, fresh=True).blocking
             speed = self.monitor.check_speed(view)  # and not one the next check holds again (a hold-resume flap)
-            if final is None and self._speed_refusal(speed) is None:
-                self.moves.resume()
-                self.resume(reason=f"the path was clear for {self._clear_count} checks")
-                return
-            self._clear_count = 0
-        if now - self._hold_since > self.cfg.hold_timeout:
-            self._finish(GoalStatus.FAILED, f"the path stayed blocked for {self.cfg.hold_timeout} s")
-            self.give_up(reason=f"blocked for {self.cfg.hold_timeout} s")
-        elif room and not (moving or clear) and self._job is None and now - self._hold_planned > self._hold_wait():
-            self._hold_planned = now
-            self._launch(JobPurpose.HOLD, self._deadline())
+            share = self.cfg.speed_separation.min_speed_share
+            refused = final.reason if final is not None else speed_refusal(speed, share)
+            if refused is None:
+                return Decision(Act.RESUME, f"the path was clear for {self.clear_count} checks")
+            self.clear_count = 0
+        if now - self.since > self.cfg.hold_timeout:
+            return Decision(Act.GIVE_UP, f"blocked for {self.cfg.hold_timeout} s")
+        if room and not (moving or clear) and not planning and now - self.planned > self._wait():
+            self.planned = now
+            return Decision(Act.PLAN_AROUND, "blocked, and room to move")
+        return Decision(Act.KEEP_HOLDING, refused or self._waits_for(moving, room, clear, planning))
 
-    def _speed_refusal(self, speed) -> str | None:
-        """Why the speed checks' report `speed` stops the arm (too close even at rest, or too slow), or None."""
-        if speed.blocking is not None:
-            return speed.blocking.reason
-        if speed.speed_factor < self.cfg.speed_separation.min_speed_share:
-            return f"speed and separation allow {speed.speed_factor:.0%} of the speed"
-        return None
+    def plan_failed(self, err: Exception) -> Decision:
+        """What to do when a plan around failed with `err`."""
+        if isinstance(err, StartInvalid):  # stopped where no plan can start: never stuck there
+            return Decision(Act.RETREAT, str(err))
+        return Decision(Act.KEEP_HOLDING, f"planning around failed ({err}): the next attempt comes later")
 
-    def _start_blocked(self, traj, now: float) -> str | None:
-        """Why a new path from rest may not start now (speed and separation would stop it at once), or None."""
-        q = self.measured()
-        return None if q is None else self._speed_refusal(self.monitor.check_start(traj, now, q))
+    def left_path(self) -> None:
+        """It backed off its path: only a new plan takes it on."""
+        self.resumable = False
 
-    def _hold_wait(self) -> float:  # replan goes round as soon as the arm stands; stop-and-wait waits first
+    def _wait(self) -> float:  # replan goes round as soon as the arm stands; stop-and-wait waits first
         if self.cfg.reaction is Reaction.REFLEX:  # the reflex alone never plans: it waits for its own path
             return math.inf
-        first = self._hold_planned == self._hold_since and self.cfg.reaction.replans
+        first = self.planned == self.since and self.cfg.reaction.replans
         return 0.0 if first else self.cfg.hold_replan_interval
 
-    def _retreat(self, why: str) -> None:
-        """Stopped where no plan can start: back off along its own curve (see Moves.escape), never stuck."""
-        arc = self.moves.escape()
-        if arc is None:
-            self.log_event("stuck", why=why)
-        else:
-            self.log_event("retreat", arc=arc, why=why)
-            self._resumable = False  # off its path now: only a new plan takes it on
+    def _waits_for(self, moving: bool, room: bool, clear: bool, planning: bool) -> str:
+        if moving:
+            return "still braking"
+        if not room:
+            return "people too close to move"
+        if clear:
+            return "clear, not yet for long enough" if self.resumable else "off its path: waits for a new plan"
+        return "a plan around is in flight" if planning else "the path is blocked"

@@ -1,4 +1,5 @@
-"""The controller's states and the edges between them (paper 002's four, and HOLDING for wait-and-resume)."""
+"""The controller's states and the edges between them (the KineoWorks reactive-planning paper's four, and HOLDING for
+wait-and-resume)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ from enum import Enum
 
 
 class State(str, Enum):
+    """A state; the machine (`transitions`) names it by the member's name, observers read its value."""
+
     WAITING = "WAITING"
     PLANNING = "PLANNING"
     MONITORING = "MONITORING"
@@ -15,7 +18,7 @@ class State(str, Enum):
 
 def edges() -> list[dict]:
     """The transitions table: every trigger, from which states, to which."""
-    W, P, M, PD, H = (s.value for s in State)
+    W, P, M, PD, H = State
     busy = [P, M, PD, H]
     return [
         {"trigger": "plan", "source": [W, P, M, PD, H], "dest": P},
