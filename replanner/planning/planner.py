@@ -111,10 +111,6 @@ class Search:
         self.checker, self.resolution, self.free = checker, resolution, free
         self.attempt: _Attempt | None = None
 
-    def count(self) -> None:
-        if self.attempt is not None:
-            self.attempt.count()
-
     def state_ok(self, q: np.ndarray) -> bool:
         ok = self.checker.motion_valid(q, q, 0.0)  # the layer's compiled call without a check's input checks
         if ok and self.free is not None:
@@ -144,8 +140,10 @@ class _Searching:
         return np.fromiter(map(s.__getitem__, self.joints), np.float64, len(self.joints))
 
     def state_valid(self, s) -> bool:
-        self.search.count()
-        return self.search.state_ok(self.q(s))
+        search = self.search
+        if search.attempt is not None:
+            search.attempt.count()
+        return search.state_ok(self.q(s))
 
 
 class _BatchMotionValidator(ob.MotionValidator):
@@ -156,9 +154,11 @@ class _BatchMotionValidator(ob.MotionValidator):
         self.searching = searching
 
     def checkMotion(self, s1, s2) -> bool:
-        search = self.searching.search
-        search.count()
-        return search.motion_ok(self.searching.q(s1), self.searching.q(s2), search.resolution)
+        searching = self.searching
+        search = searching.search
+        if search.attempt is not None:
+            search.attempt.count()
+        return search.motion_ok(searching.q(s1), searching.q(s2), search.resolution)
 
 
 _LIVE: weakref.WeakSet = weakref.WeakSet()
