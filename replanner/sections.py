@@ -255,6 +255,9 @@ class CollisionLayer(str, Enum):
     SPHERES = "spheres"  # the fast layer: spheres, then the convex shapes, FCL for what they cannot decide
     FCL = "fcl"  # the exact checker alone
 
+    def __str__(self) -> str:  # the value in messages and f-strings, as on the command line
+        return self.value
+
 
 class PlanningConfig(Section):
     planner: str = Field("RRTConnect", description="Default OMPL planner (see replanner.planning.PLANNERS).")

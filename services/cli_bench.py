@@ -2,33 +2,59 @@
 
 from __future__ import annotations
 
+import functools
+import inspect
+from collections.abc import Callable
+
 import typer
 from rich.console import Console
 from rich.table import Table
 
 from replanner.errors import ReplannerError
+from replanner.sections import CollisionLayer
 
 from .cli_common import ConfigOpt, JsonOpt, LoadOpt, fail, print_json, resolve_config
 
 app = typer.Typer(help="Benchmarks: fixed seeds, printed figures (median, p95, n).", no_args_is_help=True)
 
 
-def measured(load: int, run) -> dict:
-    """`run()` beside `load` busy processes (see --load); the result says how busy the machine was, and how fast
-    (a fixed workload's time before and after the run: runs of two hours compare at like times)."""
-    from replanner.bench.machine import describe, reference_ms
+def bench(name: str, table: Callable[[dict], None]):
+    """`replanner bench <name>` of a function that checks its options and returns what to measure, a `run() ->
+    dict`; adds --load and --json. The result says how busy the machine was (see --load) and how fast: a fixed
+    workload's time before and after the run, as runs hours apart compare only at like times."""
 
-    from .procs import Load
+    def register(command: Callable[..., Callable[[], dict]]):
+        @functools.wraps(command)
+        def main(*, load: int, as_json: bool, **options) -> None:
+            from replanner.bench.machine import describe, reference_ms
 
-    before = reference_ms()
-    try:
-        with Load(load) as busy:
-            result = run()
-    except ReplannerError as err:
-        fail(err)
-    result["load"] = busy.describe()
-    result["machine"] = describe(before, reference_ms())
-    return result
+            from .procs import Load
+
+            try:
+                run = command(**options)
+                before = reference_ms()
+                with Load(load) as busy:
+                    result = run()
+            except ReplannerError as err:
+                fail(err)
+            result["load"] = busy.describe()
+            result["machine"] = describe(before, reference_ms())
+            if as_json:
+                print_json(result)
+            else:
+                table(result)
+
+        # typer reads the options from the signature: the command's own, then the two every bench has
+        own = inspect.signature(command, eval_str=True)
+        shared = [
+            inspect.Parameter("load", inspect.Parameter.KEYWORD_ONLY, default=0, annotation=LoadOpt),
+            inspect.Parameter("as_json", inspect.Parameter.KEYWORD_ONLY, default=False, annotation=JsonOpt),
+        ]
+        main.__signature__ = own.replace(parameters=[*own.parameters.values(), *shared], return_annotation=None)
+        app.command(name)(main)
+        return command
+
+    return register
 
 
 def _print_collision(result: dict) -> None:
@@ -76,24 +102,18 @@ def _print_collision(result: dict) -> None:
     Console().print(t)
 
 
-@app.command("collision")
+@bench("collision", _print_collision)
 def bench_collision(
     config: ConfigOpt = "panda",
     seed: int = typer.Option(0, min=0, help="Seed of the scene and the configurations."),
     runs: int = typer.Option(5, min=1, help="Measured runs (plus one warm-up)."),
     n: int = typer.Option(5000, min=10, help="Configurations per run."),
     voxels: int = typer.Option(50_000, min=0, help="Occupied voxels in the octree."),
-    load: LoadOpt = 0,
-    as_json: JsonOpt = False,
-) -> None:
+) -> Callable[[], dict]:
     """Boolean and distance checks/s of the robot against a table and an octree of ~50,000 1 cm voxels."""
     from replanner.bench import collision
 
-    result = measured(load, lambda: collision.run(resolve_config(config), seed=seed, runs=runs, n=n, voxels=voxels))
-    if as_json:
-        print_json(result)
-    else:
-        _print_collision(result)
+    return lambda: collision.run(resolve_config(config), seed=seed, runs=runs, n=n, voxels=voxels)
 
 
 def _print_perception(r: dict) -> None:
@@ -123,30 +143,34 @@ def _print_perception(r: dict) -> None:
     )
 
 
-@app.command("perception")
+@bench("perception", _print_perception)
 def bench_perception(
     config: ConfigOpt = "panda",
     seed: int = typer.Option(0, min=0, help="Seed of the scene."),
     frames: int = typer.Option(40, min=30, help="Timed frames (at least 30)."),
-    load: LoadOpt = 0,
-    as_json: JsonOpt = False,
-) -> None:
+) -> Callable[[], dict]:
     """Whole perception pipeline on 640x480 clouds rendered by pybullet; octomap-python as the reference."""
     from replanner.bench import perception
 
-    result = measured(load, lambda: perception.run(resolve_config(config), seed=seed, frames=frames))
-    if as_json:
-        print_json(result)
-    else:
-        _print_perception(result)
+    return lambda: perception.run(resolve_config(config), seed=seed, frames=frames)
 
 
 def _print_planning(r: dict) -> None:
     t = Table(title=f"planning: {r['robot']}, {r['planner']}, deadline {r['deadline_s']} s, seed {r['seed']}")
     for col in (
-        "family", "n", "success", "plan ms med / p95", "search / simplify ms med", "timing ms med / p95",
-        "duration s med", "naive s med", "naive/timed", "worst v / a / j", "tube max", "collisions",
-    ):  # fmt: skip
+        "family",
+        "n",
+        "success",
+        "plan ms med / p95",
+        "search / simplify ms med",
+        "timing ms med / p95",
+        "duration s med",
+        "naive s med",
+        "naive/timed",
+        "worst v / a / j",
+        "tube max",
+        "collisions",
+    ):
         t.add_column(col)
     for name, d in [*r["families"].items(), ("overall", r["overall"])]:
         w = d.get("worst", {})
@@ -175,7 +199,7 @@ def _print_planning(r: dict) -> None:
         )
 
 
-@app.command("planning")
+@bench("planning", _print_planning)
 def bench_planning(
     config: ConfigOpt = "panda",
     seed: int = typer.Option(0, min=0, help="Seed of the scenes, starts and goals (and OMPL)."),
@@ -187,93 +211,69 @@ def bench_planning(
         help="Comma-separated families, 'ours' (table, shelf, bin, cage) or 'standard' (bookshelf_small, "
         "bookshelf_tall, bookshelf_thin, box, table_pick, table_under_pick: grasps, planned with 2 mm padding).",
     ),
-    layer: str = typer.Option(
-        None, help="Collision layer of the search: 'spheres' or 'fcl' (default: the config's planning.collision_layer)."
+    layer: CollisionLayer | None = typer.Option(
+        None, help="Collision layer of the search (default: the config's planning.collision_layer)."
     ),
     person: bool = typer.Option(
         False, help="A person-sized column of voxels beside each problem, a fresh map each plan (a planning job's)."
     ),
-    load: LoadOpt = 0,
-    as_json: JsonOpt = False,
-) -> None:
+) -> Callable[[], dict]:
     """Plan, simplify and time problems of seeded scene families: ours and the standard benchmark families."""
     from replanner.bench import planning
 
-    try:
-        chosen = planning.pick_families(families)
-    except ReplannerError as err:
-        fail(err)
+    chosen = planning.pick_families(families)
     cfg = resolve_config(config)
     if layer is not None:
-        if layer not in ("spheres", "fcl"):
-            fail(ReplannerError(f"--layer must be 'spheres' or 'fcl', got {layer!r}"))
         cfg = cfg.model_copy(update={"planning": cfg.planning.model_copy(update={"collision_layer": layer})})
-    result = measured(
-        load,
-        lambda: planning.run(
-            cfg,
-            seed=seed,
-            per_family=per_family,
-            deadline=deadline,
-            verify_all=verify,
-            families=chosen,
-            person=person,
-        ),
+    return lambda: planning.run(
+        cfg, seed=seed, per_family=per_family, deadline=deadline, verify_all=verify, families=chosen, person=person
     )
-    if as_json:
-        print_json(result)
-    else:
-        _print_planning(result)
 
 
-@app.command("replay")
-def bench_replay(
-    directory: str = typer.Argument(..., help="A directory a service recorded its jobs in (planning.record_jobs)."),
-    config: str | None = typer.Option(None, "--config", "-c", help="This config (default: the one recorded there)."),
-    repeat: int = typer.Option(1, min=1, help="Plans of each job (each with its map built anew)."),
-    purpose: str | None = typer.Option(None, help="Only jobs of these purposes, comma-separated: goal, replan, hold."),
-    layer: str = typer.Option(None, help="Collision layer of the search: 'spheres' or 'fcl' (default: the config's)."),
-    load: LoadOpt = 0,
-    as_json: JsonOpt = False,
-) -> None:
-    """Plan again the jobs a service recorded (`demo --record-jobs DIR`): plan ms here next to the service's."""
-    from replanner.bench import replay
-
-    try:
-        cfg = replay.config_of(directory, config, layer)
-    except ReplannerError as err:
-        fail(err)
-    result = measured(load, lambda: replay.run(cfg, directory, repeat=repeat, purposes=purpose and purpose.split(",")))
-    if as_json:
-        print_json(result)
-        return
-    t = Table("jobs", "plans", "solved", "plan ms median", "p95", "recorded median", "recorded p95",
-              title=f"replay of {directory}: {result['collision_layer']} layer")  # fmt: skip
+def _print_replay(result: dict) -> None:
+    t = Table(
+        "jobs",
+        "plans",
+        "solved",
+        "plan ms median",
+        "p95",
+        "recorded median",
+        "recorded p95",
+        title=f"replay of {result['directory']}: {result['collision_layer']} layer",
+    )
     for name, part in [("all", result["overall"]), *result["purposes"].items()]:
         figures = [part[k][q] for k in ("plan_ms", "recorded_plan_ms") for q in ("median", "p95")]
         t.add_row(name, str(part["plans"]), f"{part['success_rate']:.0%}", *(f"{v:.1f}" if v else "-" for v in figures))
     Console().print(t)
 
 
-@app.command("reflex")
-def bench_reflex(
-    config: ConfigOpt = "panda",
-    seed: int = typer.Option(0, min=0, help="Seed of the person's place, the arm's configuration, the vertices."),
-    n: int = typer.Option(30, min=1, help="Timed repetitions per row."),
-    load: LoadOpt = 0,
-    as_json: JsonOpt = False,
-) -> None:
-    """Seed 000's virtual forces (Table II setting): map creation and force computation per row."""
-    from replanner.bench import reflex
+@bench("replay", _print_replay)
+def bench_replay(
+    directory: str = typer.Argument(..., help="A directory a service recorded its jobs in (planning.record_jobs)."),
+    config: str | None = typer.Option(None, "--config", "-c", help="This config (default: the one recorded there)."),
+    repeat: int = typer.Option(1, min=1, help="Plans of each job (each with its map built anew)."),
+    purpose: str | None = typer.Option(None, help="Only jobs of these purposes, comma-separated: goal, replan, hold."),
+    layer: CollisionLayer | None = typer.Option(None, help="Collision layer of the search (default: the config's)."),
+) -> Callable[[], dict]:
+    """Plan again the jobs a service recorded (`demo --record-jobs DIR`): plan ms here next to the service's."""
+    from replanner.bench import replay
 
-    result = measured(load, lambda: reflex.run(resolve_config(config), seed=seed, n=n))
-    if as_json:
-        print_json(result)
-        return
+    cfg = replay.config_of(directory, config, layer)
+    return lambda: replay.run(cfg, directory, repeat=repeat, purposes=purpose and purpose.split(","))
+
+
+def _print_reflex(result: dict) -> None:
     pts, cores = result["frame_points"], result["cores"]
     t = Table(title=f"seed 000 virtual forces: {result['robot']}, {pts:,} points in the frame, {cores} cores")
-    for col in ("voxel", "vertices", "voxels", "pairs < r_max", "map ms (median / p95)", "forces ms (median / p95)",
-                "paper GPU / CPU ms"):  # fmt: skip
+    for col in (
+        "voxel",
+        "vertices",
+        "voxels",
+        "pairs < r_max",
+        "map ms (median / p95)",
+        "forces ms (median / p95)",
+        "paper GPU / CPU ms",
+    ):
         t.add_column(col)
     for r in result["rows"]:
         m, f = r["map_creation_ms"], r["force_computation_ms"]
@@ -303,21 +303,19 @@ def bench_reflex(
     )
 
 
-@app.command("monitor")
-def bench_monitor(
+@bench("reflex", _print_reflex)
+def bench_reflex(
     config: ConfigOpt = "panda",
-    seed: int = typer.Option(0, min=0, help="Seed of the clutter and the planning load."),
-    voxels: int = typer.Option(50_000, min=1000, help="Occupied voxels in the octree."),
-    load: LoadOpt = 0,
-    as_json: JsonOpt = False,
-) -> None:
-    """Remaining-path check time against ~50k voxels, and the monitor's check rate idle vs while planning."""
-    from replanner.bench import monitor
+    seed: int = typer.Option(0, min=0, help="Seed of the person's place, the arm's configuration, the vertices."),
+    n: int = typer.Option(30, min=1, help="Timed repetitions per row."),
+) -> Callable[[], dict]:
+    """Seed 000's virtual forces (Table II setting): map creation and force computation per row."""
+    from replanner.bench import reflex
 
-    result = measured(load, lambda: monitor.run(resolve_config(config), seed=seed, voxels=voxels))
-    if as_json:
-        print_json(result)
-        return
+    return lambda: reflex.run(resolve_config(config), seed=seed, n=n)
+
+
+def _print_monitor(result: dict) -> None:
     t = Table(title=f"monitor: {result['robot']}, {result['octree_voxels']} voxels")
     for col in ("figure", "value", "bar"):
         t.add_column(col)
@@ -342,7 +340,36 @@ def bench_monitor(
     Console().print(t)
 
 
-@app.command("reaction")
+@bench("monitor", _print_monitor)
+def bench_monitor(
+    config: ConfigOpt = "panda",
+    seed: int = typer.Option(0, min=0, help="Seed of the clutter and the planning load."),
+    voxels: int = typer.Option(50_000, min=1000, help="Occupied voxels in the octree."),
+) -> Callable[[], dict]:
+    """Remaining-path check time against ~50k voxels, and the monitor's check rate idle vs while planning."""
+    from replanner.bench import monitor
+
+    return lambda: monitor.run(resolve_config(config), seed=seed, voxels=voxels)
+
+
+def _print_reaction(result: dict) -> None:
+    title = f"reaction: {result['runs']} boxes dropped {result['time_to_contact_s']} s ahead of the arm"
+    rows = [
+        ("drop_to_map_ms", "drop -> in the map"),
+        ("map_to_pending_ms", "map -> PENDING"),
+        ("pending_to_spliced_ms", "PENDING -> spliced (decided)"),
+        ("pending_to_landed_ms", "PENDING -> new trajectory takes over"),
+        ("replan_plan_ms", "the plan itself (within PENDING -> spliced)"),
+    ]
+    Console().print(_stats_table(title, "interval", rows, result, "{:.0f}"))
+    Console().print(
+        f"replanned without stopping: {result['replanned_without_stopping']} of {result['runs']}; braked: "
+        f"{result['braked']}; goals reached: {result['succeeded']}; min clearance to the box "
+        f"(pybullet): {result['min_clearance_m'] * 1000:.1f} mm; speed and separation: {result['speed_separation']}"
+    )
+
+
+@bench("reaction", _print_reaction)
 def bench_reaction(
     config: ConfigOpt = "panda",
     seed: int = typer.Option(0, min=0, help="Seed of the drops (place, size, time)."),
@@ -353,52 +380,14 @@ def bench_reaction(
         help="Keep speed and separation on: it stops the arm for anything this close (a box could be a person), "
         "so the replanning chain is measured with it off unless asked.",
     ),
-    load: LoadOpt = 0,
-    as_json: JsonOpt = False,
-) -> None:
+) -> Callable[[], dict]:
     """A box dropped into the arm's path: time to the map, to PENDING, to the spliced trajectory."""
     from replanner.bench import reaction
 
-    result = measured(load, lambda: reaction.run(resolve_config(config), seed=seed, runs=runs, speed_separation=ssm))
-    if as_json:
-        print_json(result)
-        return
-    title = f"reaction: {runs} boxes dropped {result['time_to_contact_s']} s ahead of the arm"
-    rows = [
-        ("drop_to_map_ms", "drop -> in the map"),
-        ("map_to_pending_ms", "map -> PENDING"),
-        ("pending_to_spliced_ms", "PENDING -> spliced (decided)"),
-        ("pending_to_landed_ms", "PENDING -> new trajectory takes over"),
-        ("replan_plan_ms", "the plan itself (within PENDING -> spliced)"),
-    ]
-    Console().print(_stats_table(title, "interval", rows, result, "{:.0f}"))
-    Console().print(
-        f"replanned without stopping: {result['replanned_without_stopping']} of {runs}; braked: "
-        f"{result['braked']}; goals reached: {result['succeeded']}; min clearance to the box "
-        f"(pybullet): {result['min_clearance_m'] * 1000:.1f} mm; speed and separation: {result['speed_separation']}"
-    )
+    return lambda: reaction.run(resolve_config(config), seed=seed, runs=runs, speed_separation=ssm)
 
 
-@app.command("view")
-def bench_view(
-    config: ConfigOpt = "panda",
-    voxels: int = typer.Option(50_000, min=100, help="Voxels the camera fills the map with (at most its points)."),
-    seconds: float = typer.Option(20.0, min=5.0, help="Length of each phase [s]."),
-    rounds: int = typer.Option(2, min=1, help="Rounds of (without, with) the view."),
-    browser: bool = typer.Option(False, "--browser", help="Also a headless chromium on the page (same machine)."),
-    seed: int = typer.Option(0, min=0, help="Seeds the map's points."),
-    load: LoadOpt = 0,
-    as_json: JsonOpt = False,
-) -> None:
-    """The web view's cost to the service (monitor checks/s with and without it) and its drawing rate."""
-    from . import view_bench
-
-    result = measured(
-        load, lambda: view_bench.run(config, voxels=voxels, seconds=seconds, rounds=rounds, seed=seed, browser=browser)
-    )
-    if as_json:
-        print_json(result)
-        return
+def _print_view(result: dict) -> None:
     t = Table(title=f"web view: {result['robot']}, {result['map_voxels']:,} voxels, browser {result['browser']}")
     for col in ("figure", "value", "bar"):
         t.add_column(col)
@@ -413,21 +402,22 @@ def bench_view(
     Console().print(t)
 
 
-@app.command("service")
-def bench_service(
+@bench("view", _print_view)
+def bench_view(
     config: ConfigOpt = "panda",
-    seed: int = typer.Option(0, min=0, help="Seed of the goals."),
-    goals: int = typer.Option(20, min=1, help="Goals sent (one after the other)."),
-    load: LoadOpt = 0,
-    as_json: JsonOpt = False,
-) -> None:
-    """End to end over Zenoh: serve and robot --kinematic as processes; request -> result of simple goals."""
-    from replanner.bench import service
+    voxels: int = typer.Option(50_000, min=100, help="Voxels the camera fills the map with (at most its points)."),
+    seconds: float = typer.Option(20.0, min=5.0, help="Length of each phase [s]."),
+    rounds: int = typer.Option(2, min=1, help="Rounds of (without, with) the view."),
+    browser: bool = typer.Option(False, "--browser", help="Also a headless chromium on the page (same machine)."),
+    seed: int = typer.Option(0, min=0, help="Seeds the map's points."),
+) -> Callable[[], dict]:
+    """The web view's cost to the service (monitor checks/s with and without it) and its drawing rate."""
+    from . import view_bench
 
-    result = measured(load, lambda: service.run(config, resolve_config(config), seed=seed, goals=goals))
-    if as_json:
-        print_json(result)
-        return
+    return lambda: view_bench.run(config, voxels=voxels, seconds=seconds, rounds=rounds, seed=seed, browser=browser)
+
+
+def _print_service(result: dict) -> None:
     t = Table(title=f"service end to end: {result['robot']}, {result['transport']}")
     for col in ("interval", "median", "p95", "n"):
         t.add_column(col)
@@ -443,46 +433,54 @@ def bench_service(
     Console().print(t)
 
 
-@app.command("splice")
-def bench_splice(
+@bench("service", _print_service)
+def bench_service(
     config: ConfigOpt = "panda",
-    seed: int = typer.Option(0, min=0, help="Seed of the motions, the splice times and the new goals."),
-    n: int = typer.Option(100, min=1, help="Splices (refusals included: they are on the same hot path)."),
-    load: LoadOpt = 0,
-    as_json: JsonOpt = False,
-) -> None:
-    """A new path spliced onto a motion at full speed, from seeded mid-motion states: ms per splice."""
-    from replanner.bench import splice
+    seed: int = typer.Option(0, min=0, help="Seed of the goals."),
+    goals: int = typer.Option(20, min=1, help="Goals sent (one after the other)."),
+) -> Callable[[], dict]:
+    """End to end over Zenoh: serve and robot --kinematic as processes; request -> result of simple goals."""
+    from replanner.bench import service
 
-    result = measured(load, lambda: splice.run(resolve_config(config), seed=seed, n=n))
-    if as_json:
-        print_json(result)
-        return
-    title = f"splice: {result['robot']}, {n} seeded mid-motion states"
+    return lambda: service.run(config, resolve_config(config), seed=seed, goals=goals)
+
+
+def _print_splice(result: dict) -> None:
+    title = f"splice: {result['robot']}, {result['splice_ms']['n']} seeded mid-motion states"
     rows = [("splice_ms", "every splice"), ("spliced_ms", "spliced"), ("refused_ms", "refused")]
     Console().print(_stats_table(title, "", rows, result))
     Console().print(f"refused: {result['refused']} (bar: p95 <= {result['bars']['splice_ms_p95']} ms)")
 
 
-@app.command("scene-edit")
+@bench("splice", _print_splice)
+def bench_splice(
+    config: ConfigOpt = "panda",
+    seed: int = typer.Option(0, min=0, help="Seed of the motions, the splice times and the new goals."),
+    n: int = typer.Option(100, min=1, help="Splices (refusals included: they are on the same hot path)."),
+) -> Callable[[], dict]:
+    """A new path spliced onto a motion at full speed, from seeded mid-motion states: ms per splice."""
+    from replanner.bench import splice
+
+    return lambda: splice.run(resolve_config(config), seed=seed, n=n)
+
+
+def _print_scene_edit(result: dict) -> None:
+    Console().print(
+        f"scene-edit: {result['runs']} boxes added onto the path: went into one in {result['passed_through']} runs; "
+        f"replanned around it in {result['replanned']}, failed with a reason in {result['failed_with_reason']}"
+    )
+
+
+@bench("scene-edit", _print_scene_edit)
 def bench_scene_edit(
     config: ConfigOpt = "panda",
     seed: int = typer.Option(0, min=0, help="Seed of the edits (when, where, how big)."),
     runs: int = typer.Option(20, min=1, help="Boxes added, one per run."),
-    load: LoadOpt = 0,
-    as_json: JsonOpt = False,
-) -> None:
+) -> Callable[[], dict]:
     """A box added to the scene onto the path of a moving arm: does the arm ever go into it? (pybullet says)"""
     from replanner.bench import scene_edit
 
-    result = measured(load, lambda: scene_edit.run(resolve_config(config), seed=seed, runs=runs))
-    if as_json:
-        print_json(result)
-        return
-    Console().print(
-        f"scene-edit: {runs} boxes added onto the path: went into one in {result['passed_through']} runs; "
-        f"replanned around it in {result['replanned']}, failed with a reason in {result['failed_with_reason']}"
-    )
+    return lambda: scene_edit.run(resolve_config(config), seed=seed, runs=runs)
 
 
 def _stats_table(title: str, head: str, rows: list[tuple[str, str]], result: dict, fmt: str = "{:.2f}") -> Table:

@@ -13,15 +13,16 @@ from ..errors import InvalidInputError
 from ..model.geometry import shape_to_dict
 from ..planning.recording import RecordedJob, load_jobs, recorded_config
 from ..planning.types import PlanningError
+from ..sections import CollisionLayer
 from ..sim.config import load_cell_config
 from ..stack import build_stack
 from ..stats import summary
 from ..world.occupancy import OccupancyMap
 
 
-def config_of(directory: str, config: str | None = None, layer: str | None = None) -> ReplannerConfig:
+def config_of(directory: str, config: str | None = None, layer: CollisionLayer | None = None) -> ReplannerConfig:
     """`config` (a YAML file or a profile name), else the config recorded beside the jobs; `layer`: the search's
-    collision layer instead of the config's ('spheres' or 'fcl')."""
+    collision layer instead of the config's."""
     if config is not None:
         cfg = load_cell_config(config).core()
     else:
@@ -30,8 +31,6 @@ def config_of(directory: str, config: str | None = None, layer: str | None = Non
             raise InvalidInputError(f"no config.json in {directory}: give the config the jobs were planned with (-c)")
         cfg = parse_config(kept, source=f"{directory}/config.json")
     if layer is not None:
-        if layer not in ("spheres", "fcl"):
-            raise InvalidInputError(f"--layer must be 'spheres' or 'fcl', got {layer!r}")
         cfg = cfg.model_copy(update={"planning": cfg.planning.model_copy(update={"collision_layer": layer})})
     return cfg
 
@@ -84,9 +83,13 @@ def run(cfg: ReplannerConfig, directory: str, *, seed: int = 0, repeat: int = 1,
         )
         try:
             res = planner.plan(
-                job.start, job.q_goal, planner=job.planner, deadline=job.deadline, padding=job.padding,
+                job.start,
+                job.q_goal,
+                planner=job.planner,
+                deadline=job.deadline,
+                padding=job.padding,
                 heading=job.heading,
-            )  # fmt: skip
+            )
             row = {"ok": True, "plan_ms": res.total_time * 1e3, "attempts": res.attempts}
         except PlanningError as err:
             row = {"ok": False, "reason": f"{type(err).__name__}: {err}"}
@@ -104,7 +107,7 @@ def run(cfg: ReplannerConfig, directory: str, *, seed: int = 0, repeat: int = 1,
                 "recorded_plan_ms": None if recorded.get("plan_s") is None else recorded["plan_s"] * 1e3,
             }
         )
-    return summarize(rows, directory, robot.name, cfg.planning.collision_layer, repeat)
+    return summarize(rows, directory, robot.name, cfg.planning.collision_layer.value, repeat)
 
 
 def summarize(rows: list[dict], directory: str, robot: str, layer: str, repeat: int) -> dict:
