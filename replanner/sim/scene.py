@@ -15,6 +15,7 @@ import pybullet as pb
 from ..model.geometry import Box, Cylinder, Shape, Sphere
 from ..model.robot import RobotModel
 from ..model.transforms import make_transform, matrix_to_quat
+from .raster import PyBulletMeshes
 
 
 def room_geometry() -> list[tuple[str, Shape, np.ndarray]]:
@@ -90,9 +91,16 @@ class PyBulletScene:
             pb.resetJointState(self.body, self.joint_index[name], value, physicsClientId=self.client)
         self.objects: dict[str, int] = {}
         self.room: dict[str, int] = {}
+        self._meshes: PyBulletMeshes | None = None
         if room:
             for name, shape, pose in room_geometry():
                 self.room[name] = self._create(shape, pose)
+
+    def meshes(self) -> PyBulletMeshes:
+        """What a depth camera sees of this world, for the compiled z-buffer (`raster.py`)."""
+        if self._meshes is None:
+            self._meshes = PyBulletMeshes(self.client, self.robot, self.body)
+        return self._meshes
 
     def close(self) -> None:
         if self._owns_client:
