@@ -86,6 +86,37 @@ def test_scaling_slows_down_and_keeps_the_scaled_limits(panda, planned):
     np.testing.assert_allclose(slow.limits.velocity, panda.limits.velocity * 0.5)
 
 
+def test_speed_caps_along_the_path_hold_under_every_retiming(panda, planned):
+    """Caps on the path speed over stretches of s (a person beside the middle of the path): the time law keeps under
+    them and under the joint limits, at 1 kHz, timed from rest, after a slow-down and after a brake and a resume."""
+    from replanner.trajectory.timelaw import SpeedCaps
+
+    _, checker, path = planned[1]
+    gen = TrajectoryGenerator(panda, checker)
+    free = gen.time(path)
+    L = free.curve.length
+    peak = float(free.law.v.max())
+    edges = np.array([0.0, 0.3 * L, 0.6 * L, L])
+    caps = SpeedCaps(edges, np.array([peak, 0.25 * peak, peak]))
+
+    def within(traj, t0=0.0):
+        t = np.arange(t0, traj.duration, DT)
+        s, v, _, _ = traj.law.eval(t)
+        k = np.minimum(np.searchsorted(edges, s, side="right") - 1, 2)
+        assert (v <= caps.speed[k] * 1.001 + 1e-9).all(), float((v / caps.speed[k]).max())
+        assert max(fd_ratios(traj.evaluate(t, order=0)[0], traj.limits)) <= TOL
+
+    slow = gen.time(path, caps_of=lambda curve: caps)
+    assert slow.caps is caps and slow.duration > free.duration
+    within(slow)
+    t_mid = slow.duration * 0.5
+    within(gen.slow_down(slow, t_mid, 0.5), 0.0)
+    braked = gen.brake(slow, 0.2 * slow.duration)
+    within(gen.resume(braked))
+    with pytest.raises(ValueError, match="increasing edges"):
+        SpeedCaps(np.array([0.0, 0.0]), np.array([1.0]))
+
+
 @pytest.fixture(scope="module")
 def table_motion(panda, panda_cfg):
     """A fixed scene (the table) and a fixed valid path: no planner randomness in the splice tests."""

@@ -6,7 +6,7 @@ A trajectory is a geometric curve q(s) (`curve.py`) plus a jerk-limited time law
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +29,7 @@ from .curve import (
 from .kernels import warm_up
 from .timelaw import (
     Limits,
+    SpeedCaps,
     TimeLaw,
     bounds_of,
     entry_speed,
@@ -50,13 +51,20 @@ class Trajectory:
     """A timed, jerk-limited motion along a curve. Time runs from 0 to `duration` [s]."""
 
     def __init__(
-        self, curve: Curve, law: TimeLaw, limits: Limits, joint_names: Sequence[str] = (), nominal: Limits | None = None
+        self,
+        curve: Curve,
+        law: TimeLaw,
+        limits: Limits,
+        joint_names: Sequence[str] = (),
+        nominal: Limits | None = None,
+        caps: SpeedCaps | None = None,
     ):
         self.curve = curve
         self.law = law
         self.limits = limits
         self.nominal = nominal or limits  # the limits before any slow-down: a resume goes back to them
         self.joint_names = tuple(joint_names)
+        self.caps = caps  # path speed caps besides the limits (people near the curve): every retiming keeps them
 
     @property
     def duration(self) -> float:
@@ -162,30 +170,41 @@ class TrajectoryGenerator:
 
     # ------------------------------------------------------------------ timing
     def time(
-        self, path, velocity_scale: float = 1.0, acceleration_scale: float = 1.0, report: TimingReport | None = None
+        self,
+        path,
+        velocity_scale: float = 1.0,
+        acceleration_scale: float = 1.0,
+        report: TimingReport | None = None,
+        caps_of: Callable[[Curve], SpeedCaps | None] | None = None,
     ) -> Trajectory:
-        """A jerk-limited trajectory from rest to rest along `path` (m, dof), corners blended within the tube."""
+        """A jerk-limited trajectory from rest to rest along `path` (m, dof), corners blended within the tube.
+
+        caps_of(curve): path speed caps along a curve besides the joint limits (see `SeparationCaps`), or None."""
         W = self._check_path(path)
         lim = self.limits(velocity_scale, acceleration_scale)
+        caps_of = caps_of or (lambda c: None)
         curve, scale = self._safe_curve(W, report)
-        law = time_law(curve, lim, 0.0, 0.0, 0.0, curve.length)
+        caps = caps_of(curve)
+        law = time_law(curve, lim, 0.0, 0.0, 0.0, curve.length, caps=caps)
         # a tight blend can be slower than stopping at its corner: keep each blend only if it saves time
         for k in np.flatnonzero(scale > 0)[1:-1] if len(scale) > 2 else []:
             trial = scale.copy()
             trial[k] = 0.0
             c = blended_curve(W, self.tube_radius, trial)
-            lw = time_law(c, lim, 0.0, 0.0, 0.0, c.length)
+            cc = caps_of(c)
+            lw = time_law(c, lim, 0.0, 0.0, 0.0, c.length, caps=cc)
             if lw.duration < law.duration - 1e-9:
-                curve, law, scale = c, lw, trial
+                curve, law, scale, caps = c, lw, trial, cc
         if len(scale) > 2 and np.any(scale[1:-1] > 0):  # blends chosen one at a time: never worse than none
             c = blended_curve(W, self.tube_radius, np.zeros(len(W)))
-            lw = time_law(c, lim, 0.0, 0.0, 0.0, c.length)
+            cc = caps_of(c)
+            lw = time_law(c, lim, 0.0, 0.0, 0.0, c.length, caps=cc)
             if lw.duration < law.duration - 1e-9:
-                curve, law, scale = c, lw, np.zeros(len(W))
+                curve, law, scale, caps = c, lw, np.zeros(len(W)), cc
         if report:
             report.stops_at_corners = int(np.sum(scale[1:-1] == 0)) if len(scale) > 2 else 0
             report.max_deviation = float(distance_to_polyline(curve.samples(), curve.polyline).max())
-        return Trajectory(curve, law, lim, self.robot.joint_names)
+        return Trajectory(curve, law, lim, self.robot.joint_names, caps=caps)
 
     def time_naive(self, path, velocity_scale: float = 1.0, acceleration_scale: float = 1.0) -> Trajectory:
         """The reference: straight lines, coming to rest at every waypoint."""
@@ -245,7 +264,9 @@ class TrajectoryGenerator:
         lim = Limits(traj.limits.velocity * 1e3, traj.limits.acceleration, traj.limits.jerk)
         end = float(traj.law.eval(np.array([traj.duration]))[0][0])
         if v0 <= 1e-9 and abs(a0) <= 1e-9:
-            return Trajectory(curve, law_from_phases([], 0.0, s0), traj.limits, traj.joint_names, traj.nominal)
+            return Trajectory(
+                curve, law_from_phases([], 0.0, s0), traj.limits, traj.joint_names, traj.nominal, traj.caps
+            )
         # the closest stop point whose backward pass admits the current speed, then time it like any path;
         # speeding up, the arm still gains a^2 / 2j (at the weakest piece's jerk) before it can slow down
         j_min = min(piece_bounds(p, lim)[2] for p in curve.pieces)
@@ -263,7 +284,7 @@ class TrajectoryGenerator:
         for _ in range(60):
             try:
                 law = time_law(curve, lim, s0, v0, a0, stop)
-                return Trajectory(curve, law, traj.limits, traj.joint_names, traj.nominal)
+                return Trajectory(curve, law, traj.limits, traj.joint_names, traj.nominal, traj.caps)
             except TrajectoryError:
                 if stop >= end:
                     break
@@ -274,9 +295,8 @@ class TrajectoryGenerator:
         """The rest of `traj` from time t, as a trajectory starting at 0."""
         s0, v0, a0, _ = (float(x[0]) for x in traj.law.eval(np.array([t])))
         end = float(traj.law.eval(np.array([traj.duration]))[0][0])
-        return Trajectory(
-            traj.curve, time_law(traj.curve, traj.limits, s0, v0, a0, end), traj.limits, traj.joint_names, traj.nominal
-        )
+        law = time_law(traj.curve, traj.limits, s0, v0, a0, end, caps=traj.caps)
+        return Trajectory(traj.curve, law, traj.limits, traj.joint_names, traj.nominal, traj.caps)
 
     def slow_down(self, traj: Trajectory, t: float, factor: float) -> Trajectory:
         """The rest of `traj` from time t on its own curve, at `factor` in (0, 1] of its nominal velocity limits."""
@@ -286,19 +306,19 @@ class TrajectoryGenerator:
         base = traj.nominal  # slow-downs of slow-downs do not compound
         lim = Limits(base.velocity * factor, base.acceleration, base.jerk)
         try:  # slowing down within the limits it runs at, as hard as the path allows
-            law = time_law(traj.curve, lim, s0, v0, a0, traj.curve.length, keep=traj.limits)
+            law = time_law(traj.curve, lim, s0, v0, a0, traj.curve.length, keep=traj.limits, caps=traj.caps)
         except TrajectoryError:  # where that cut lands badly (a stop already close): as the new limits allow
-            law = time_law(traj.curve, lim, s0, v0, a0, traj.curve.length)
-        return Trajectory(traj.curve, law, lim, traj.joint_names, base)
+            law = time_law(traj.curve, lim, s0, v0, a0, traj.curve.length, caps=traj.caps)
+        return Trajectory(traj.curve, law, lim, traj.joint_names, base, traj.caps)
 
     def resume(self, traj: Trajectory) -> Trajectory:
         """From where `traj` ends at rest (a brake's stop), on to the end of its curve at the nominal limits."""
         s_stop = traj.s_at(traj.duration)
         lim = traj.nominal
         if traj.curve.length - s_stop < 1e-9:
-            return Trajectory(traj.curve, law_from_phases([], 0.0, s_stop), lim, traj.joint_names)
-        law = time_law(traj.curve, lim, s_stop, 0.0, 0.0, traj.curve.length)
-        return Trajectory(traj.curve, law, lim, traj.joint_names)
+            return Trajectory(traj.curve, law_from_phases([], 0.0, s_stop), lim, traj.joint_names, caps=traj.caps)
+        law = time_law(traj.curve, lim, s_stop, 0.0, 0.0, traj.curve.length, caps=traj.caps)
+        return Trajectory(traj.curve, law, lim, traj.joint_names, caps=traj.caps)
 
     @staticmethod
     def _can_stop(curve: Curve, lim: Limits, s0: float, v0: float, stop: float) -> bool:

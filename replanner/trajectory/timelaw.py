@@ -37,6 +37,39 @@ class Limits:
     jerk: np.ndarray
 
 
+@dataclass(frozen=True)
+class SpeedCaps:
+    """Path speed caps along a curve, piecewise constant: speed[i] [s units/s] on [edges[i], edges[i + 1]) of s.
+
+    What else limits the speed (a person near the path, say) than the joint limits: the time law keeps under both.
+    """
+
+    edges: np.ndarray
+    speed: np.ndarray
+
+    def __post_init__(self) -> None:
+        e, v = np.asarray(self.edges, float), np.asarray(self.speed, float)
+        if e.ndim != 1 or v.shape != (len(e) - 1,) or len(v) < 1 or np.any(np.diff(e) <= 0) or np.any(~(v > 0)):
+            raise ValueError("speed caps need increasing edges (K + 1,) and K speeds > 0")
+        object.__setattr__(self, "edges", e)
+        object.__setattr__(self, "speed", v)
+
+
+def _capped(ks, bounds, edges, caps: SpeedCaps):
+    """ks, bounds, edges with every part of a piece under one cap: pieces cut where a cap changes, their speed
+    bounds lowered to it (beyond the caps' edges, the last cap holds)."""
+    nk, nb, ne = [], [], [edges[0]]
+    for i, k in enumerate(ks):
+        a, b = edges[i], edges[i + 1]
+        cuts = caps.edges[(caps.edges > a + 1e-9) & (caps.edges < b - 1e-9)]
+        for lo, hi in zip([a, *cuts], [*cuts, b]):
+            j = min(max(int(np.searchsorted(caps.edges, (lo + hi) / 2, side="right")) - 1, 0), len(caps.speed) - 1)
+            nk.append(k)
+            nb.append([min(bounds[i][0], float(caps.speed[j])), bounds[i][1], bounds[i][2]])
+            ne.append(hi)
+    return nk, nb, ne
+
+
 def piece_bounds(piece: Piece, lim: Limits) -> tuple[float, float, float]:
     """(max s_dot, max s_ddot, max s_dddot) on a piece that keep every joint within its limits."""
     return tuple(bounds_of([piece], lim)[0])
@@ -188,18 +221,22 @@ def _speed_caps(
     end_cap: float | None,
     keep: Limits | None = None,
     a0: float = 0.0,
+    caps: SpeedCaps | None = None,
 ):
     """Pieces ks from s0 to s_end, their bounds, edges, and the highest speed at each edge the arm can slow down from.
 
     end_cap: the speed allowed at s_end (0: come to rest there; None: the last piece's own speed bound).
     keep: the limits the arm is running at when `lim` is lower (a slow-down): until it can have slowed down to `lim`,
         braking as hard as each piece allows, a piece keeps the speed the arm can still have there (within `keep`).
+    caps: speed caps along s besides the limits' (see SpeedCaps).
     """
     first = int(curve.piece_at(np.array([s0]))[0])
     last = int(curve.piece_at(np.array([s_end - 1e-12]))[0])
     ks = list(range(first, last + 1))
     bounds = bounds_of(curve.pieces[first : last + 1], lim).tolist()
     edges = [s0] + [float(curve.starts[k + 1]) for k in ks[:-1]] + [s_end]
+    if caps is not None:
+        ks, bounds, edges = _capped(ks, bounds, edges, caps)
     n = len(ks)
     if keep is not None and v0 > bounds[0][0]:
         ks, bounds, edges = _slowing(curve, ks, bounds, edges, keep, v0, a0)
@@ -262,13 +299,21 @@ def entry_speed(curve: Curve, lim: Limits, pieces: int) -> float:
 
 
 def time_law(
-    curve: Curve, lim: Limits, s0: float, v0: float, a0: float, s_end: float, keep: Limits | None = None
+    curve: Curve,
+    lim: Limits,
+    s0: float,
+    v0: float,
+    a0: float,
+    s_end: float,
+    keep: Limits | None = None,
+    caps: SpeedCaps | None = None,
 ) -> TimeLaw:
     """Jerk-limited s(t) from (s0, v0, a0) to rest at s_end, piece by piece, never backwards.
 
     keep: the limits the arm runs at now, if higher than `lim`: it slows down to `lim` within them (see _speed_caps).
+    caps: speed caps along s besides the limits' (an arm above one where it starts slows down within `keep`).
     """
-    ks, bounds, edges, cap = _speed_caps(curve, lim, s0, v0, s_end, 0.0, keep, a0)
+    ks, bounds, edges, cap = _speed_caps(curve, lim, s0, v0, s_end, 0.0, keep, a0, caps)
     n = len(ks)
     for i in range(1, n):  # forward: able to speed up in time
         vmax, amax, jmax = bounds[i - 1]
