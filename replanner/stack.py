@@ -90,6 +90,21 @@ def build_stack(
 
 
 def _wire(cfg, robot, static, seed, cameras, execute, plan_in, clock) -> Stack:
+    plan_in = plan_in or ("process" if cfg.controller.planning_process else "thread")
+    # the planning child builds its stack while this process builds its own: started first, waited for last
+    child = ProcessWorker(cfg, seed, wait=False) if execute is not None and plan_in == "process" else None
+    try:
+        stack = _parts(cfg, robot, static, seed, cameras, execute, plan_in, clock, child)
+        if child is not None:
+            child.wait_ready()
+        return stack
+    except BaseException:
+        if child is not None:
+            child.close()
+        raise
+
+
+def _parts(cfg, robot, static, seed, cameras, execute, plan_in, clock, child) -> Stack:
     robot = robot or RobotModel.from_config(cfg.robot)
     world = World(robot)
     for name, shape, pose in scene_from_config(cfg) if static is None else static:
@@ -120,9 +135,8 @@ def _wire(cfg, robot, static, seed, cameras, execute, plan_in, clock) -> Stack:
         reaction_time=latency.reaction_time if sensors else None,
         joint_state_age=latency.joint_state_age,
     )
-    plan_in = plan_in or ("process" if cfg.controller.planning_process else "thread")
     if plan_in == "process":
-        stack.worker = ProcessWorker(cfg, seed)
+        stack.worker = child
     elif plan_in == "inline":
         stack.worker = InlineWorker(planner, generator, clock)
     else:

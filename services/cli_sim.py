@@ -176,6 +176,12 @@ def soak(
     seed: int = typer.Option(7, min=0, help="Seeds the operator's script."),
     policy: str = typer.Option("replan", help="replan+reflex, replan, reflex, stop-and-wait or none."),
     every: float = typer.Option(60.0, min=5.0, help="Sample every this many seconds."),
+    cycles: int | None = typer.Option(
+        None,
+        "--cycles",
+        min=1,
+        help="Stop at the first sample that counts this many completed cycles (or at --minutes).",
+    ),
     json_path: str | None = typer.Option(None, "--json", help="Write the samples and totals to this JSON file."),
     plot: str | None = typer.Option(None, "--plot", help="Draw memory and reaction latency over time to a PNG."),
     log_dir: str | None = typer.Option(None, "--log-dir", help="Keep the processes' logs and the truth here."),
@@ -189,7 +195,15 @@ def soak(
         cfg = _demo_cell(config, policy)
         with Load(load) as busy:
             result = soak_mod.run(
-                config, cfg, minutes=minutes, seed=seed, policy=policy, every=every, log_dir=log_dir, console=console
+                config,
+                cfg,
+                minutes=minutes,
+                seed=seed,
+                policy=policy,
+                every=every,
+                cycles=cycles,
+                log_dir=log_dir,
+                console=console,
             )
         result["load"] = busy.describe()
         soak_mod.write(result, json_path, plot)

@@ -59,7 +59,8 @@ def run(
     record_jobs: str | None = None,
 ) -> tuple[dict, object, dict]:
     """Run one demo; returns (metrics, recording, run info). `tick(elapsed, procs, recorder)` is called about
-    four times a second while it runs (the soak samples there). `view_port`: also run `replanner view` there.
+    four times a second while it runs (the soak samples there); a tick that returns True ends the run.
+    `view_port`: also run `replanner view` there.
     `record_jobs`: the service keeps its planning jobs in this directory (planning.record_jobs)."""
     console = console or Console()
     logs = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix="replanner-demo-"))
@@ -182,8 +183,8 @@ def _watch(recorder, client_proc, procs, cycles, duration, t0, policy, live, con
         return t
 
     def finished() -> bool:
-        if tick is not None:
-            tick(time.time() - t0, procs, recorder)
+        if tick is not None and tick(time.time() - t0, procs, recorder):
+            return True
         if not client_proc.alive():
             return True
         if duration is not None and time.time() - t0 > duration:

@@ -38,14 +38,14 @@ def children(pid: int) -> list[int]:
 
 class Sampler:
     """Every `every` seconds: RSS [MB] of each process (and the service's children: its planning process), and
-    what the recording says so far."""
+    what the recording says so far. With `cycles`, a sample that counts that many completed cycles ends the run."""
 
-    def __init__(self, every: float):
-        self.every, self.rows, self._next = float(every), [], float(every)
+    def __init__(self, every: float, cycles: int | None = None):
+        self.every, self.rows, self._next, self.cycles = float(every), [], float(every), cycles
 
-    def __call__(self, elapsed: float, procs, recorder) -> None:
+    def __call__(self, elapsed: float, procs, recorder) -> bool:
         if elapsed < self._next:
-            return
+            return False
         self._next += self.every
         rss = {}
         for p in procs:
@@ -70,6 +70,7 @@ class Sampler:
                 },
             }
         )
+        return self.cycles is not None and self.rows[-1]["cycles"] >= self.cycles
 
 
 def _pct(values, q):
@@ -86,10 +87,12 @@ def run(
     seed: int,
     policy: str,
     every: float = 60.0,
+    cycles: int | None = None,
     log_dir: str | None = None,
     console: Console | None = None,
 ) -> dict:
-    sampler = Sampler(every)
+    """Loop the demo for `minutes`, or until a sample counts `cycles` completed cycles (the sim's truth)."""
+    sampler = Sampler(every, cycles)
     metrics, rec, info = demo_mod.run(
         config,
         cfg,

@@ -93,16 +93,19 @@ def test_short_demo_end_to_end(tmp_path):
     assert "cycles completed" in r.stdout
 
 
-def test_a_three_minute_soak_samples_every_process(tmp_path):
-    """The CI's soak: the demo looping for 3 minutes, sampled every 30 s (the hour-long one is run by hand)."""
+def test_a_short_soak_samples_every_process(tmp_path):
+    """The CI's soak: the demo looping until a sample counts 5 cycles, sampled every 5 s (at most 6 minutes; the
+    hour-long one is run by hand). A cycle takes its motions' time, so 5 cycles span more than 5 samples."""
     out, plot = tmp_path / "soak.json", tmp_path / "soak.png"
     r = subprocess.run(
         replanner_cmd(
             "soak",
             "--minutes",
-            "3",
+            "6",
+            "--cycles",
+            "5",
             "--every",
-            "30",
+            "5",
             "--json",
             str(out),
             "--plot",

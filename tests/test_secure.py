@@ -45,6 +45,8 @@ def _session(path: Path | None, endpoint: str, via_router: bool, tls: dict | Non
         listen = () if via_router else ("tls/127.0.0.1:0",)  # not the service's port, even with its identity
         return open_session(make_config(TransportConfig(), "node", mode, [endpoint], listen, str(path)))
     conf = make_config(TransportConfig(endpoint=endpoint), "node", "client" if via_router else "peer")
+    if via_router:  # a client the router refuses gives up after 5 s, not the 30 s it would wait for a router to start
+        conf.insert_json5("connect/timeout_ms", json.dumps({"router": -1, "peer": -1, "client": 5000}))
     if tls is not None:
         conf.insert_json5("transport/link/tls", json.dumps(tls))
     return open_session(conf)

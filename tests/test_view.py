@@ -28,12 +28,18 @@ def _browser():
     return headless_chromium()
 
 
-def _shot(browser) -> np.ndarray:
+def _text(browser) -> str:
+    # the page's rendered text in one native call: selenium's `.text` runs a script that reads the style of every
+    # element, which took a starved software renderer 10 to 30 s a call beside two busy processes
+    return browser.execute_script("return document.body.innerText")
+
+
+def _pixels(png: bytes) -> np.ndarray:
     import io
 
     from PIL import Image
 
-    return np.asarray(Image.open(io.BytesIO(browser.get_screenshot_as_png())).convert("RGB"), np.int16)
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), np.int16)
 
 
 def _changed(a: np.ndarray, b: np.ndarray) -> int:
@@ -130,30 +136,38 @@ def _until(pred, timeout, what):
 
 def test_the_page_draws_robot_and_map_and_sends_a_goal(cell, tmp_path):
     view, browser, procs = cell
-    _until(lambda: "WAITING" in browser.find_element("tag name", "body").text, 180, "the state label on the page")
+    _until(lambda: "WAITING" in _text(browser), 180, "the state label on the page")
 
     # the meshes load in the browser: wait until hiding the robot changes the picture, then the map
+    shown = {}
+
     def layer_shows(name) -> bool:
-        with_it = _shot(browser)
+        shown[name] = browser.get_screenshot_as_png()
+        with_it = _pixels(shown[name])
         view.set_layer(name, False)
         time.sleep(0.5)
-        without = _shot(browser)
+        without = _pixels(browser.get_screenshot_as_png())
         view.set_layer(name, True)
         time.sleep(0.5)
         return _changed(with_it, without) > {"robot": 3000, "map": 300}[name]
 
     _until(lambda: layer_shows("robot"), 300, "the robot drawn on the page")
     _until(lambda: layer_shows("map"), 300, "the map drawn on the page")
-    browser.save_screenshot(str(tmp_path / "view.png"))
-    # a goal from the page: its joint field holds home; the button sends it and the service moves the arm there
-    button = [b for b in browser.find_elements("tag name", "button") if b.text.strip() == "Send joint goal"]
-    assert button, "no 'Send joint goal' button on the page"
-    # the page's own click handler, through a script: a native click waits on a rendered frame, which a starved
-    # software renderer took over selenium's 120 s to give (CI with two busy processes)
-    browser.execute_script("arguments[0].click();", button[0])
+    (tmp_path / "view.png").write_bytes(shown["map"])  # robot and map drawn (another screenshot waits for a frame)
+    # a goal from the page: its joint field holds home; the button sends it and the service moves the arm there.
+    # One script finds the button and runs the page's own click handler: every WebDriver command waits on a starved
+    # software renderer (reading each button's text took minutes), and a native click waits on a rendered frame,
+    # which took over selenium's 120 s to give (CI with two busy processes)
+    clicked = browser.execute_script(
+        "const b = [...document.querySelectorAll('button')].find((b) => b.innerText.trim() === arguments[0]);"
+        "if (b) b.click();"
+        "return b !== undefined;",
+        "Send joint goal",
+    )
+    assert clicked, "no 'Send joint goal' button on the page"
     _until(lambda: "sent" in view.last_message, 120, "the page's goal sent")
     _until(lambda: np.abs(view.watch.q - np.array(HOME)).max() < 1e-3, 120, f"the arm at home ({view.last_message})")
-    _until(lambda: "WAITING" in browser.find_element("tag name", "body").text, 120, "the service done")
+    _until(lambda: "WAITING" in _text(browser), 120, "the service done")
     assert view.rate >= 10.0, f"the view draws at {view.rate:.1f} Hz"
     assert all(p.alive() for p in procs)
 
@@ -168,7 +182,7 @@ def test_no_service_is_said_on_the_page_and_a_restart_is_picked_up(tmp_path):
         browser = _browser()
         browser.get(view.url)
         _until(
-            lambda: "no service on replanner/@v1/panda" in browser.find_element("tag name", "body").text,
+            lambda: "no service on replanner/@v1/panda" in _text(browser),
             60,
             "the page saying there is no service",
         )
@@ -180,11 +194,11 @@ def test_no_service_is_said_on_the_page_and_a_restart_is_picked_up(tmp_path):
         drawn = view.updates
         _until(lambda: view.watch.bad >= 5 and view.updates > drawn + 5, 30, "the view ignoring garbage")
         serve = Proc("serve", replanner_cmd("serve", "-c", "panda", "--no-cameras", "-l", endpoint), tmp_path)
-        _until(lambda: "WAITING" in browser.find_element("tag name", "body").text, 60, "the page picking it up")
+        _until(lambda: "WAITING" in _text(browser), 60, "the page picking it up")
         serve.stop()
-        _until(lambda: "no service" in browser.find_element("tag name", "body").text, 30, "the page noticing")
+        _until(lambda: "no service" in _text(browser), 30, "the page noticing")
         serve = Proc("serve", replanner_cmd("serve", "-c", "panda", "--no-cameras", "-l", endpoint), tmp_path)
-        _until(lambda: "WAITING" in browser.find_element("tag name", "body").text, 60, "the restart picked up")
+        _until(lambda: "WAITING" in _text(browser), 60, "the restart picked up")
     finally:
         if browser is not None:
             browser.quit()

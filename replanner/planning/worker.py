@@ -288,22 +288,46 @@ class ProcessWorker(PlanWorker):
         start_timeout: [s] to wait for the child to build its stack (seconds; a first start compiles the kernels).
         answer_margin: [s] beyond a job's deadline to wait for the child before giving up on that job (negative:
             before it; tests use that to see a given-up answer arrive late).
+        wait: wait here for the child to be ready; False: the caller builds meanwhile and calls `wait_ready()`
+            (`start` waits too).
     """
 
-    def __init__(self, cfg, seed: int | None = None, *, start_timeout: float = 300.0, answer_margin: float = 30.0):
+    def __init__(
+        self,
+        cfg,
+        seed: int | None = None,
+        *,
+        start_timeout: float = 300.0,
+        answer_margin: float = 30.0,
+        wait: bool = True,
+    ):
         super().__init__()
         self._proc, self._conn, self._cancel_conn = start_plan_process()
-        self.answer_margin = float(answer_margin)
+        self.answer_margin, self.start_timeout = float(answer_margin), float(start_timeout)
+        self._ready = False
         self._conn.send((cfg.core().model_dump(mode="python"), seed))
-        if not self._conn.poll(start_timeout):
-            self.close()
-            raise ReplannerError(
-                f"the planning process did not start within {start_timeout} s (a first start on a machine compiles "
-                "the kernels into numba's cache: see that the cache directory is writable, or set NUMBA_CACHE_DIR)"
-            )
-        self._conn.recv()
         self._sent_version: int | None = None
         self._sent_map: object | None = None
+        if wait:
+            self.wait_ready()
+
+    def wait_ready(self) -> None:
+        """Wait until the child has built its stack (at most `start_timeout`; then it is closed and this raises)."""
+        if self._ready:
+            return
+        if not self._conn.poll(self.start_timeout):
+            self.close()
+            raise ReplannerError(
+                f"the planning process did not start within {self.start_timeout} s (a first start on a machine "
+                "compiles the kernels into numba's cache: see that the cache directory is writable, or set "
+                "NUMBA_CACHE_DIR)"
+            )
+        self._conn.recv()
+        self._ready = True
+
+    def start(self, on_answer: Callable[[PlanAnswer], None]) -> PlanWorker:
+        self.wait_ready()
+        return super().start(on_answer)
 
     def _interrupt(self, job: PlanJob) -> None:
         try:
