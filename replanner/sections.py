@@ -228,6 +228,13 @@ class PerceptionConfig(Section):
     sensors: list[SensorConfig] = Field(default_factory=list)
     range_filter: bool = True
     downsample: bool = Field(True, description="Filter voxels instead of points (much faster).")
+    edge_filter: float | None = Field(
+        0.02,
+        gt=0.0,
+        le=1.0,
+        description="Organized clouds: pixels whose depth differs from a neighbour's by more than this share of it "
+        "are dropped (mixed pixels at depth edges float in mid-air); null: off.",
+    )
     self_filter: SelfFilterConfig = Field(default_factory=SelfFilterConfig)
     outliers: OutlierConfig = Field(default_factory=OutlierConfig)
     occupancy: OccupancyUpdateConfig = Field(default_factory=OccupancyUpdateConfig)

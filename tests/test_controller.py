@@ -402,15 +402,22 @@ def test_held_the_replan_policy_goes_round_at_once_stop_and_wait_waits_its_inter
 
 
 def test_a_path_from_rest_that_speed_and_separation_would_stop_at_once_is_not_started(make_sim):
-    """Held by a box on its path with room to move, the replan policy plans its way round; the box comes within
-    the distance a reaction takes while it plans: the new path is dropped, not started and braked again at once
+    """Held by a box on its path with room to move, the replan policy plans its way round, keeping S_p and the
+    approach of a person while plans take as long as they have been taking; this one takes longer, and the box comes
+    within the distance a reaction takes meanwhile: the new path is dropped, not started and braked again at once
     (the demo's co-worker reaching in did this), and the arm goes on along its own path once the box is gone."""
-    sim = make_sim(reaction="replan", pending_timeout=0.01, hold_timeout=60.0, speed_separation={"enabled": True})
-    sim.stack.worker.delay = 0.4  # [s] of simulated planning: time for the box to come closer
+    sim = make_sim(
+        reaction="replan",
+        pending_timeout=0.01,
+        hold_timeout=60.0,
+        replan_deadline=0.02,  # plans from rest keep the approach of a person while they take this long
+        speed_separation={"enabled": True, "approach_speed": 1.0},  # room for a plan from where the arm holds
+    )
+    sim.stack.worker.delay = 0.4  # [s] of simulated planning: time for the box to come closer than planned for
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
     h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
-    _drop_on_path(sim, after=0.3, where=0.7)
+    _drop_on_path(sim, after=0.05, where=0.6)
     wait_state(sim, State.HOLDING, within=5.0)
     held = len(edges(sim))
     sim.run_until(lambda: any(e["purpose"] == "hold" for e in _events(sim, "plan_requested")), 5.0, "a plan round")

@@ -68,18 +68,23 @@ class Paddings:
 
     def __init__(self, checker: CollisionChecker, wrap: Callable[[CollisionChecker], object] = lambda c: c):
         self.checker, self.wrap = checker, wrap
-        self._kept: dict[float, object] = {}
+        self._kept: dict[tuple[float, float], object] = {}
 
-    def get(self, padding: float | None, base=None):
-        """The checker for `padding` [m]; `base` is handed out for the configured one (default: the checker)."""
-        if padding is None or padding == self.checker.padding:
+    def get(self, padding: float | None, base=None, map_margin: float = 0.0):
+        """The checker for `padding` [m] and `map_margin` [m] more from the map (see `with_map_margin`); `base` is
+        handed out for the configured one (default: the checker)."""
+        if (padding is None or padding == self.checker.padding) and map_margin == 0:
             return self.checker if base is None else base
-        padding = check_padding(padding)
-        found = self._kept.pop(padding, None)
+        padding = self.checker.padding if padding is None else check_padding(padding)
+        if not (math.isfinite(map_margin) and 0.0 <= map_margin < 1.0):
+            raise InvalidInputError(f"map_margin must be in [0, 1) m, got {map_margin!r}")
+        key = (padding, float(map_margin))
+        found = self._kept.pop(key, None)
         if found is None:
-            found = self.wrap(padded_checker(self.checker, padding))
+            c = self.checker if padding == self.checker.padding else padded_checker(self.checker, padding)
+            found = self.wrap(with_map_margin(c, map_margin))
             found.is_valid(self.checker.robot.home)  # build the padded geometry now
-        self._kept[padding] = found  # most recently used last
+        self._kept[key] = found  # most recently used last
         while len(self._kept) > KEEP:
             self._kept.pop(next(iter(self._kept)))
         return found

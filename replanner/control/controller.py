@@ -24,6 +24,7 @@ from ..collision.exact import CollisionChecker
 from ..errors import ReplannerError, UnknownNameError
 from ..model.robot import RobotModel
 from ..monitor import Monitor
+from ..monitor.ssm import SeparationPlan
 from ..planning import GoalInvalid, Planner, StartInvalid
 from ..planning.worker import JobPurpose, PlanAnswer, PlanJob, PlanWorker
 from ..sections import AfterBrake, ControllerConfig, Reaction
@@ -294,11 +295,20 @@ class Controller:
             start_q = base[1].state_at(land - base[0])[0]
         else:
             start_q = self.measured() if self.liveness.last_js else self.robot.home
-        rest = (goal.velocity_scale, goal.acceleration_scale, now, goal.padding)
+        rest = (goal.velocity_scale, goal.acceleration_scale, now, goal.padding, self._separation(purpose, now, land))
         q_goal, job_id = self._handle.q_goal, next(self._job_ids)
         self._job = PlanJob(job_id, purpose, start_q, q_goal, deadline, land, base, goal.planner, *rest)
         self.log_event("plan_requested", purpose=purpose.value, job=self._job.id)
         self.worker.submit(self._job, self.checker.world.snapshot())
+
+    def _separation(self, purpose: JobPurpose, now: float, land: float | None) -> SeparationPlan | None:
+        """A replan, and a plan from a held arm, keep speed and separation from the map (the monitor's T_r, the time
+        until the path runs: its landing, or the time plans have been taking); a goal's first plan keeps its padding."""
+        if purpose is JobPurpose.GOAL or not self.monitor.speed_checks:
+            return None
+        after = land - now if land is not None else self.latency.plan_time(now, self.cfg.replan_deadline)
+        lat = self.latency
+        return SeparationPlan(self.cfg.speed_separation, lat.reaction_time(now), lat.joint_state_age(now), after)
 
     def _cancel_job(self) -> None:
         if self._job is not None:

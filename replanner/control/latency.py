@@ -119,6 +119,12 @@ class LatencyAccount:
             if took is not None:
                 self.stages["replan_plan"].add(now, took)
 
+    def plan_time(self, now: float, default: float) -> float:
+        """[s] a replan's plan has been taking: the `percentile` of the window, `default` without samples."""
+        with self._lock:
+            took = self.stages["replan_plan"].values(now)
+        return float(np.percentile(took, self.percentile)) if len(took) else default
+
     def landing_margin(self, now: float, margin: float) -> float:
         """[s] after a replan's deadline its landing time lies: `margin`, or more when answers have been arriving
         later than that (a busy machine), so the next one lands in time instead of failing as late."""

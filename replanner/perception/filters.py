@@ -26,6 +26,27 @@ def finite_in_range(rows: np.ndarray, origin, min_range: float, max_range: float
         return (r2 >= min_range * min_range) & (r2 <= max_range * max_range)  # NaN fails both
 
 
+def jump_edges(z: np.ndarray, jump: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of a depth image (H, W) whose depth differs from a 4-neighbour's by more than `jump` times their nearer
+    depth, and the image with those pixels at the nearest depth around them. At a depth edge a pixel may return a mix
+    of both sides (a point in mid-air), and both sides' edge pixels go, since which of them is mixed cannot be told;
+    the ray of each is free up to the nearer side, which still clears what it passes."""
+    near = z.copy()
+    with np.errstate(invalid="ignore"):
+        edge = np.zeros(z.shape, dtype=bool)
+        dx = np.abs(z[:, 1:] - z[:, :-1]) > jump * np.fmin(z[:, 1:], z[:, :-1])
+        dy = np.abs(z[1:] - z[:-1]) > jump * np.fmin(z[1:], z[:-1])
+        np.fmin(near[:, 1:], z[:, :-1], out=near[:, 1:])
+        np.fmin(near[:, :-1], z[:, 1:], out=near[:, :-1])
+        np.fmin(near[1:], z[:-1], out=near[1:])
+        np.fmin(near[:-1], z[1:], out=near[:-1])
+    edge[:, 1:] |= dx
+    edge[:, :-1] |= dx
+    edge[1:] |= dy
+    edge[:-1] |= dy
+    return edge, np.where(edge, near, z)
+
+
 class VoxelGrid:
     """A dense grid over the workspace box, aligned with OctoMap's voxels (voxel i covers [i*res, (i+1)*res)).
 

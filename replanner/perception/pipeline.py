@@ -26,7 +26,7 @@ from ..sections import PerceptionConfig, SensorConfig
 from ..world.occupancy import OccupancyMap
 from ..world.scene import World
 from .camera import CameraModel, pose_from_config
-from .filters import SelfFilter, VoxelGrid, finite_in_range, statistical_outliers
+from .filters import SelfFilter, VoxelGrid, finite_in_range, jump_edges, statistical_outliers
 from .grid import LogOddsGrid
 from .jointstate import JointStateBuffer
 from .kernels import in_sorted, shadow_cells, union_sorted, voxelize, warm_up
@@ -248,6 +248,14 @@ class Perception:
             rep.timings_ms[stage] = (now - t_prev) * 1e3
             t_prev = now
 
+        if frame.organized and depth is None and cfg.edge_filter is not None:
+            c = sensor.cfg
+            edge, clear_depth = jump_edges(pts[:, 2].reshape(c.height, c.width), cfg.edge_filter)
+            if edge.any():  # no hits at depth edges; their rays clear up to the nearer side
+                pts = pts.copy()
+                pts[edge.ravel()] = np.nan
+                depth = clear_depth
+            rep.counts["edges"] = int(edge.sum())
         lap("validate")
         # an organized frame of no returns is a live camera seeing nothing (NaN never clears: too far or too near)
         seeing = frame.organized or depth is not None

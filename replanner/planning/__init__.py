@@ -11,6 +11,7 @@ from .types import (
     PlanningError,
     PlanResult,
     PoseGoal,
+    SeparationInfeasible,
     StartInvalid,
     UnknownPlanner,
 )
@@ -34,6 +35,7 @@ __all__ = [
     "PlanningError",
     "PoseGoal",
     "ProcessWorker",
+    "SeparationInfeasible",
     "StartInvalid",
     "ThreadWorker",
     "UnknownPlanner",

@@ -347,6 +347,7 @@ class Planner:
         cancel: threading.Event | None = None,
         padding: float | None = None,
         heading=None,
+        map_margin: float = 0.0,
     ) -> PlanResult:
         """A collision-free path from start to goal (JointGoal, PoseGoal or an array) within `deadline` [s].
 
@@ -356,9 +357,10 @@ class Planner:
         padded geometry before the deadline starts (the last few paddings are kept).
         `heading` (dof,): the joint velocity of an arm moving at `start` (a replan to be spliced onto its motion): a
         path that would start against it starts with a short step along it (planning/heading.py).
+        `map_margin` [m]: kept from the occupancy map beyond its padding (speed and separation: see SeparationCaps).
         """
         heading = check_heading(heading, self.robot)
-        search = Search(self.paddings.get(padding, self.checker), self._coarse_resolution())
+        search = Search(self.paddings.get(padding, self.checker, map_margin), self._coarse_resolution())
         self._last = search.checker
         self._searching.search = search  # what OMPL's callbacks ask, for this plan
         try:

@@ -36,6 +36,12 @@ class NoSolution(PlanningError):
     reason = "no_solution"
 
 
+class SeparationInfeasible(PlanningError):
+    """No path from the start keeps the protective separation from what the cameras see (the arm holds)."""
+
+    reason = "separation"
+
+
 class PlanningCanceled(PlanningError):
     reason = "canceled"
 

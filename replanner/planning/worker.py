@@ -8,6 +8,7 @@ data) goes to the callback given to `start`, from the worker's thread.
 
 from __future__ import annotations
 
+import functools
 import logging
 import pickle
 import socket
@@ -24,10 +25,12 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from ..errors import ReplannerError
+from ..monitor.ssm import SeparationCaps, SeparationPlan
 from ..trajectory import Trajectory, TrajectoryGenerator
+from ..trajectory.timelaw import SpeedCaps
 from ..world.scene import WorldSnapshot
 from .planner import Planner
-from .types import PlanningError, PlanResult
+from .types import PlanningError, PlanResult, SeparationInfeasible
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +61,7 @@ class PlanJob:
     acceleration_scale: float = 1.0
     requested: float = 0.0
     padding: float | None = None  # [m] from known objects; None: the planner's
+    separation: SeparationPlan | None = None  # keep speed and separation from the map's voxels (None: its padding)
     cancel: threading.Event = field(default_factory=threading.Event, repr=False)
 
     def heading(self) -> np.ndarray | None:
@@ -174,7 +178,9 @@ def plan_and_time(
     planner: Planner, gen: TrajectoryGenerator, job: PlanJob, cancel: threading.Event | None = None
 ) -> tuple[Trajectory, PlanResult]:
     """The work of a job: a path from its start, then timed from rest or spliced onto its base at `land` (the path
-    told the base's motion there: one that would start against it cannot be spliced on)."""
+    told the base's motion there: one that would start against it cannot be spliced on). A job with `separation`
+    keeps S_p from the map's voxels: its search keeps the margin at rest, its timing the speed each stretch allows."""
+    guard, margin = _separation(planner, gen, job)
     res = planner.plan(
         job.start,
         job.q_goal,
@@ -183,13 +189,46 @@ def plan_and_time(
         cancel=cancel,
         padding=job.padding,
         heading=job.heading(),
+        map_margin=margin,
     )
+    caps_of = None
+    if guard is not None:  # the curve's blends keep the path's margin too
+        gen = gen.with_checker(planner.paddings.get(job.padding, None, margin).exact)
+        caps_of = functools.partial(_caps, guard)
     if job.base is not None:
         start, base = job.base
-        traj = gen.splice(base, job.land - start, res.path, job.velocity_scale, job.acceleration_scale)
+        traj = gen.splice(base, job.land - start, res.path, job.velocity_scale, job.acceleration_scale, caps_of=caps_of)
     else:
-        traj = gen.time(res.path, job.velocity_scale, job.acceleration_scale)
+        traj = gen.time(res.path, job.velocity_scale, job.acceleration_scale, caps_of=caps_of)
     return traj, res
+
+
+def _separation(planner: Planner, gen: TrajectoryGenerator, job: PlanJob) -> tuple[SeparationCaps | None, float]:
+    """The job's speed-and-separation guard (None: nothing to keep it from) and its search's map margin [m]; raises
+    when its start has no room to move."""
+    sep = job.separation
+    occ = planner.exact.world.snapshot().occupancy
+    if sep is None or not sep.cfg.enabled or occ is None or not len(occ):
+        return None, 0.0
+    guard = SeparationCaps(planner.exact, occ, sep, gen.limits(job.velocity_scale, job.acceleration_scale))
+    S, margin = guard.start_room(job.start)
+    if S < guard.at_rest():
+        raise SeparationInfeasible(
+            f"speed and separation: the start is {S:.3f} m from what the cameras see, less than the "
+            f"{guard.at_rest():.3f} m a path from it needs (S_p at rest with T_r {sep.reaction_time * 1e3:.0f} ms, "
+            f"and {guard.approach:.3f} m a person comes while it is made and started)"
+        )
+    return guard, margin
+
+
+def _caps(guard: SeparationCaps, curve) -> SpeedCaps:
+    caps = guard(curve)
+    if guard.infeasible:
+        raise SeparationInfeasible(
+            f"speed and separation: {guard.infeasible} stretches of the path come closer to what the cameras see than "
+            f"an arm at rest may ({guard.at_rest():.3f} m)"
+        )
+    return caps
 
 
 class ThreadWorker(PlanWorker):

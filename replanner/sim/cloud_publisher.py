@@ -19,7 +19,7 @@ from ..perception import CameraModel, pose_from_config
 from ..transport import messages as m
 from .bodies import PARK, create_capsule, pose_from_list, set_pose
 from .camera import PyBulletDepthCamera
-from .config import CellConfig, SimConfig
+from .config import CellConfig, NoiseConfig, SimConfig
 from .scene import PyBulletScene
 
 log = logging.getLogger(__name__)
@@ -58,11 +58,17 @@ class CloudPublisher:
         self.robot = robot or RobotModel.from_config(cfg.robot)
         self.publish = publish
         self.rate_hz = float(rate_hz)
-        self.scene = PyBulletScene(self.robot, draw_collision=True)  # rendering is the sim's largest cost
+        self.scene = PyBulletScene(self.robot)
         for name, shape, pose in static:
             self.scene.add(name, shape, pose)
+        meshes = self.scene.meshes()
         self.cameras = [
-            (s.name, PyBulletDepthCamera(self.scene.client, CameraModel.from_config(s), pose_from_config(s.pose)))
+            (
+                s.name,
+                PyBulletDepthCamera(
+                    self.scene.client, CameraModel.from_config(s), pose_from_config(s.pose), meshes=meshes
+                ),
+            )
             for s in cfg.perception.sensors
         ]
         self.frames = 0
@@ -136,18 +142,6 @@ class CloudPublisher:
         set_pose(self.scene.client, self._op, pose_from_list(op))
         set_pose(self.scene.client, self._part, pose_from_list(part))
 
-    def _depth_noise(self, depth: np.ndarray) -> np.ndarray:
-        """Kinect-like: range-dependent noise, missing returns, stray points."""
-        nz = self.noise
-        if nz.depth_sigma > 0:
-            depth = depth + self.rng.normal(0.0, 1.0, depth.shape).astype(np.float32) * nz.depth_sigma * depth**2
-        if nz.dropout > 0:
-            depth[self.rng.random(depth.shape) < nz.dropout] = np.nan
-        if nz.outliers > 0:
-            stray = self.rng.random(depth.shape) < nz.outliers
-            depth[stray] = self.rng.uniform(0.3, 4.0, int(stray.sum())).astype(np.float32)
-        return depth
-
     def _loop(self) -> None:
         period = 1.0 / self.rate_hz
         now = time.monotonic()
@@ -171,7 +165,44 @@ class CloudPublisher:
                     self._apply_bodies(js[2])
                 depth = cam.depth()
             c = cam.camera
-            pts = c.depth_to_points(self._depth_noise(depth))
+            pts = c.depth_to_points(depth_noise(depth, self.noise, self.rng))
             # stamped with the joint state it was rendered at: the self-filter sees the same arm
             self.publish(name, m.encode_cloud(js[0], pts, name, c.width, c.height))
             self.frames += 1
+
+
+def depth_noise(depth: np.ndarray, nz: NoiseConfig, rng: np.random.Generator) -> np.ndarray:
+    """A structured-light camera's depth image (Kinect-like) from an exact one: mixed pixels at depth edges, noise
+    growing with range squared, missing returns, stray points."""
+    depth = flying_pixels(depth, nz.flying, rng) if nz.flying > 0 else depth.copy()
+    if nz.depth_sigma > 0:
+        depth += rng.normal(0.0, 1.0, depth.shape).astype(np.float32) * nz.depth_sigma * depth**2
+    if nz.dropout > 0:
+        depth[rng.random(depth.shape) < nz.dropout] = np.nan
+    if nz.outliers > 0:
+        stray = rng.random(depth.shape) < nz.outliers
+        depth[stray] = rng.uniform(0.3, 4.0, int(stray.sum())).astype(np.float32)
+    return depth
+
+
+def flying_pixels(depth: np.ndarray, share: float, rng: np.random.Generator, jump: float = 0.05) -> np.ndarray:
+    """`share` of the pixels at a depth edge (a 4-neighbour more than `jump` x depth away) return a depth drawn
+    between theirs and that neighbour's: a real camera's pixel straddling an edge mixes both sides' returns."""
+    far = np.full(depth.shape, np.nan, np.float32)  # each pixel's farthest-off neighbour (NaN: none across an edge)
+    gap = np.zeros(depth.shape, np.float32)
+    with np.errstate(invalid="ignore"):
+        for mine, theirs in (
+            (np.s_[:, 1:], np.s_[:, :-1]),
+            (np.s_[:, :-1], np.s_[:, 1:]),
+            (np.s_[1:], np.s_[:-1]),
+            (np.s_[:-1], np.s_[1:]),
+        ):
+            d = np.abs(depth[theirs] - depth[mine])
+            wider = (d > jump * np.fmin(depth[mine], depth[theirs])) & (d > gap[mine])
+            gap[mine] = np.where(wider, d, gap[mine])
+            far[mine] = np.where(wider, depth[theirs], far[mine])
+    at = np.flatnonzero(np.isfinite(far))
+    at = at[rng.random(len(at)) < share]
+    out = depth.copy()
+    out.flat[at] += rng.random(len(at)).astype(np.float32) * (far.flat[at] - depth.flat[at])
+    return out

@@ -176,11 +176,12 @@ class KinematicSim:
 def _render(conn, cfg: ReplannerConfig, static) -> None:
     """The cameras' process: the robot and the objects in pybullet; renders every camera when asked."""
     robot = RobotModel.from_config(cfg.robot)
-    scene = PyBulletScene(robot, draw_collision=True)  # collision geometry renders faster than the visual
+    scene = PyBulletScene(robot)
     for name, shape, pose in static:
         scene.add(name, shape, pose)
+    meshes = scene.meshes()
     cams = [
-        (s.name, PyBulletDepthCamera(scene.client, CameraModel.from_config(s), pose_from_config(s.pose)))
+        (s.name, PyBulletDepthCamera(scene.client, CameraModel.from_config(s), pose_from_config(s.pose), meshes=meshes))
         for s in cfg.perception.sensors
     ]
     conn.send("ready")

@@ -67,13 +67,18 @@ class SteppedSim:
             st.generator,
         )
         self.perception, self.controller = st.perception, st.controller
-        self.scene = PyBulletScene(robot, draw_collision=True)
+        self.scene = PyBulletScene(robot)
         for name, shape, pose in static:
             self.scene.add(name, shape, pose)
         self.cameras = []
         if self.perception is not None:
             for s in cfg.perception.sensors:
-                cam = PyBulletDepthCamera(self.scene.client, CameraModel.from_config(s), pose_from_config(s.pose))
+                cam = PyBulletDepthCamera(
+                    self.scene.client,
+                    CameraModel.from_config(s),
+                    pose_from_config(s.pose),
+                    meshes=self.scene.meshes(),
+                )
                 self.cameras.append((s.name, cam))
         self.camera_period = 1.0 / camera_rate
         self.camera_latency = camera_latency

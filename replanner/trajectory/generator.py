@@ -153,6 +153,10 @@ class TrajectoryGenerator:
         """From a validated `planning` config section (its tube radius)."""
         return cls(robot, checker, tube_radius=cfg.tube_radius)
 
+    def with_checker(self, checker) -> TrajectoryGenerator:
+        """This generator with its curves checked by `checker` (a plan's own: more padding from the map, say)."""
+        return TrajectoryGenerator(self.robot, checker, tube_radius=self.tube_radius)
+
     def limits(self, velocity_scale: float = 1.0, acceleration_scale: float = 1.0) -> Limits:
         for name, f in (("velocity_scale", velocity_scale), ("acceleration_scale", acceleration_scale)):
             if not (0.0 < f <= 1.0):
@@ -342,6 +346,7 @@ class TrajectoryGenerator:
         acceleration_scale: float = 1.0,
         report: TimingReport | None = None,
         merge_within: float | None = None,
+        caps_of: Callable[[Curve], SpeedCaps | None] | None = None,
     ) -> Trajectory:
         """Continue `traj` from its state at time t0 onto new_path (whose first waypoint is that state's position).
 
@@ -351,7 +356,8 @@ class TrajectoryGenerator:
         are tried in a fixed order, cheap tests first, at most len(SPLICE_LEADS) x len(SPLICE_MERGES) of them: the
         result depends on the inputs alone, never on the machine's speed. Raises TrajectoryError if none fits
         (e.g. the new path turns back against the motion): brake and plan from rest instead. `merge_within` [rad
-        of arc along new_path]: merge no farther (a swerve must not skip its own detour).
+        of arc along new_path]: merge no farther (a swerve must not skip its own detour). `caps_of`: as `time`'s (an
+        arm faster than the first cap slows down to it as fast as the limits allow).
         """
         s0, v0, a0, _ = (float(x[0]) for x in traj.law.eval(np.array([t0])))
         q0 = traj.curve.eval(np.array([s0]))[0]
@@ -360,7 +366,7 @@ class TrajectoryGenerator:
             raise InvalidInputError("the new path must start at the trajectory's position at t0")
         lim = self.limits(velocity_scale, acceleration_scale)
         if v0 < 1e-9 and abs(a0) < 1e-9:
-            return self.time(W, velocity_scale, acceleration_scale, report)
+            return self.time(W, velocity_scale, acceleration_scale, report, caps_of)
         report = report if report is not None else TimingReport()
         old_end = float(traj.law.eval(np.array([traj.duration]))[0][0])
         total = float(np.sum(np.linalg.norm(np.diff(W, axis=0), axis=1)))
@@ -428,11 +434,13 @@ class TrajectoryGenerator:
                     continue
                 try:
                     curve, _ = self._safe_curve(rest, report, head=lead_in, first=draft)
-                    law = time_law(curve, lim, 0.0, v0, a0, curve.length)
+                    caps = None if caps_of is None else caps_of(curve)
+                    keep = None if caps is None else lim  # above the first cap: slow down within the limits
+                    law = time_law(curve, lim, 0.0, v0, a0, curve.length, keep=keep, caps=caps)
                 except TrajectoryError as err:
                     last_err = str(err)
                     continue
-                new = Trajectory(curve, law, lim, self.robot.joint_names)
+                new = Trajectory(curve, law, lim, self.robot.joint_names, caps=caps)
                 Q = new.evaluate(np.linspace(0, new.duration, 300), order=0)[0]
                 if np.any(np.diff(progress_along(Q, W)) < -1e-6):
                     last_err = "the transition would move backwards along the new path"
