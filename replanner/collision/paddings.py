@@ -83,7 +83,8 @@ class Paddings:
         if found is None:
             c = self.checker if padding == self.checker.padding else padded_checker(self.checker, padding)
             found = self.wrap(with_map_margin(c, map_margin))
-            found.is_valid(self.checker.robot.home)  # build the padded geometry now
+            # build the padded geometry now; a writable copy of home: the argument type the kernels were warmed up with
+            found.is_valid(np.array(self.checker.robot.home))
         self._kept[key] = found  # most recently used last
         while len(self._kept) > KEEP:
             self._kept.pop(next(iter(self._kept)))
