@@ -332,6 +332,11 @@ class SpeedSeparationConfig(Section):
     C + Z_d + Z_r, with T_r measured, T_s and S_s from the arm's brake, every unknown voxel possibly a person."""
 
     enabled: bool = Field(True, description="Off: only the path checks and the safety distance guard the arm.")
+    plans: bool = Field(
+        True,
+        description="Plans keep S_p from the map's voxels, timed slower near them; off: plans keep map_padding and "
+        "the monitor alone slows the arm near people.",
+    )
     approach_speed: float = Field(
         1.6,
         gt=0.0,

@@ -264,7 +264,10 @@ def bench_replay(
 
 def _print_reflex(result: dict) -> None:
     pts, cores = result["frame_points"], result["cores"]
-    t = Table(title=f"seed 000 virtual forces: {result['robot']}, {pts:,} points in the frame, {cores} cores")
+    t = Table(
+        title=f"the GPU potential-field paper's virtual forces: {result['robot']}, {pts:,} points in the frame, "
+        f"{cores} cores"
+    )
     for col in (
         "voxel",
         "vertices",
@@ -296,7 +299,8 @@ def _print_reflex(result: dict) -> None:
     k, (w, wo) = result["seed_001_kernels"], result["seed_001_wall"]
     u = k["update_ms"]
     Console().print(
-        f"seed 001 kernels: {u['median']:.2f} / {u['p95']:.2f} ms per update (median / p95, n={u['n']}) for "
+        f"Baumgartner and Klančar's kernels: {u['median']:.2f} / {u['p95']:.2f} ms per update "
+        f"(median / p95, n={u['n']}) for "
         f"{k['points_of_interest']} points of interest; reaching past a wall, joint 4 ends "
         f"{w['joint4_final_distance_m'] * 100:.1f} cm from it with avoidance, {wo['joint4_final_distance_m'] * 100:.1f}"
         f" cm without (goal within {w['goal_error_m'] * 1e3:.1f} / {wo['goal_error_m'] * 1e3:.1f} mm)"
@@ -309,7 +313,7 @@ def bench_reflex(
     seed: int = typer.Option(0, min=0, help="Seed of the person's place, the arm's configuration, the vertices."),
     n: int = typer.Option(30, min=1, help="Timed repetitions per row."),
 ) -> Callable[[], dict]:
-    """Seed 000's virtual forces (Table II setting): map creation and force computation per row."""
+    """The GPU potential-field paper's virtual forces (its Table II setting): map creation and forces per row."""
     from replanner.bench import reflex
 
     return lambda: reflex.run(resolve_config(config), seed=seed, n=n)
@@ -481,6 +485,59 @@ def bench_scene_edit(
     from replanner.bench import scene_edit
 
     return lambda: scene_edit.run(resolve_config(config), seed=seed, runs=runs)
+
+
+def _print_block(r: dict) -> None:
+    u = r["unblocked"]
+    t = Table(
+        title=f"block: forearm held {r['hold_s']:.0f} s or box left on the path; unblocked {u['duration_s']:.2f} s"
+    )
+    for col in ("policy", "forearm <= +3 s", "box <= +3 s", "reached (forearm / box)", "extra s, median", "stops"):
+        t.add_column(col)
+    for policy in r["policies"]:
+        p = r[policy]
+
+        def pct(v):
+            return "-" if v is None else f"{v:.0%}"
+
+        t.add_row(
+            policy,
+            pct(p["forearm_reached_within_3s"]),
+            pct(p["box_reached_within_3s"]),
+            f"{pct(p['forearm_reached'])} / {pct(p['box_reached'])}",
+            "-" if p["extra_s"]["median"] is None else f"{p['extra_s']['median']:.1f}",
+            str(p["protective_stops"]),
+        )
+    Console().print(t)
+    for policy in r["policies"]:
+        p = r[policy]
+        Console().print(
+            f"{policy}: collisions {p['collisions']}, separation below the S_p in force at {p['separation_below_sp']} "
+            f"instants (least S - S_p {p['least_separation_minus_sp_m']} m)"
+        )
+
+
+@bench("block", _print_block)
+def bench_block(
+    config: ConfigOpt = "demo",
+    seed: int = typer.Option(0, min=0, help="Seed of the forearms' and boxes' poses."),
+    poses: int = typer.Option(20, min=0, help="Forearms set across the transfer path, held still, then taken away."),
+    boxes: int = typer.Option(5, min=0, help="Boxes set down on the path and left there."),
+    hold: float = typer.Option(10.0, min=0.0, help="Seconds a forearm is held still."),
+    policy: list[str] = typer.Option(["replan", "stop-and-wait"], help="Policies to run (replan, stop-and-wait)."),
+) -> Callable[[], dict]:
+    """The KineoWorks reactive-planning paper's experiment: the arm sent across a blocked transfer path, on a simulated
+    clock; per policy, reached or not, time against the unblocked transfer, stops, separation against S_p."""
+    from replanner.bench import block
+    from replanner.sim.config import load_cell_config
+
+    for p in policy:
+        if p not in block.POLICIES:
+            fail(typer.BadParameter(f"--policy must be one of {', '.join(block.POLICIES)}, got {p!r}"))
+    if poses + boxes == 0:
+        fail(typer.BadParameter("--poses and --boxes are both 0: nothing to measure"))
+    cfg = load_cell_config(config)
+    return lambda: block.run(cfg, seed=seed, poses=poses, boxes=boxes, hold=hold, policies=tuple(policy))
 
 
 def _stats_table(title: str, head: str, rows: list[tuple[str, str]], result: dict, fmt: str = "{:.2f}") -> Table:

@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import yaml
 
 from tests.conftest import CONFIGS
@@ -174,19 +175,50 @@ def test_cli_modules_import_each_other_as_a_tree_of_public_names():
     assert graph["cli_common"] == [], "cli_common is the leaf: it imports no other cli module"
 
 
-def test_connection_flags_are_the_same_on_every_session_command():
+HELPS = """
+import contextlib, io, json, sys
+from replanner_services.cli import app
+
+out = {}
+for command in sys.argv[1:]:
+    stdout, stderr, code = io.StringIO(), io.StringIO(), 0
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        try:
+            app([command, "--help"], prog_name="replanner")
+        except SystemExit as end:  # --help exits
+            code = end.code or 0
+    out[command] = [code, stdout.getvalue(), stderr.getvalue()]
+print(json.dumps(out))
+"""
+HELP_COMMANDS = ("serve", "goal", "robot", "cancel", "status", "scene", "sim", "pick-and-place", "router")
+
+
+@pytest.fixture(scope="module")
+def helps() -> dict[str, subprocess.CompletedProcess]:
+    """`replanner <command> --help` of every command below, as the command prints it (COLUMNS=200), read in one
+    process: each `replanner` process spends seconds importing on a busy machine, the same for every command."""
+    env = {**os.environ, "COLUMNS": "200"}
+    out = subprocess.run(
+        [sys.executable, "-c", HELPS, *HELP_COMMANDS], capture_output=True, text=True, timeout=300, env=env
+    )
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    return {c: subprocess.CompletedProcess([c, "--help"], code, o, e) for c, (code, o, e) in got.items()}
+
+
+def test_connection_flags_are_the_same_on_every_session_command(helps):
     """Like zenoh-python's examples: -m/--mode, -e/--connect, -l/--listen, --zenoh-config, defined once."""
     for command in ("serve", "goal", "robot", "cancel", "status", "scene", "sim", "pick-and-place"):
-        out = replanner(command, "--help", timeout=60)
+        out = helps[command]
         assert out.returncode == 0, (command, out.stderr)
         for flags in (r"--mode\s+-m\b", r"--connect\s+-e\b", r"--listen\s+-l\b", r"--zenoh-config\b"):
             assert re.search(flags, out.stdout), (command, flags, out.stdout)
-    out = replanner("router", "--help", timeout=60)
+    out = helps["router"]
     assert re.search(r"--listen\s+-l\b", out.stdout) and "[default: router]" in out.stdout, out.stdout
 
 
-def test_help_keeps_units_and_config_profiles():
-    out = replanner("goal", "--help", timeout=60)
+def test_help_keeps_units_and_config_profiles(helps):
+    out = helps["goal"]
     assert "Joint goal [rad]" in out.stdout and "Planning deadline [s]" in out.stdout, out.stdout
     assert "(panda, iiwa, demo)" in out.stdout
 

@@ -413,10 +413,10 @@ def test_a_path_from_rest_that_speed_and_separation_would_stop_at_once_is_not_st
         replan_deadline=0.02,  # plans from rest keep the approach of a person while they take this long
         speed_separation={"enabled": True, "approach_speed": 1.0},  # room for a plan from where the arm holds
     )
-    sim.stack.worker.delay = 0.4  # [s] of simulated planning: time for the box to come closer than planned for
     assert go_to(sim, A, "start").status == GoalStatus.SUCCEEDED
     h = submit(sim, Goal.joints("across", B, velocity_scale=SLOW))
     wait_state(sim, State.MONITORING)
+    sim.stack.worker.delay = 0.4  # [s] of simulated planning from now on: longer than plans have been taking
     _drop_on_path(sim, after=0.05, where=0.6)
     wait_state(sim, State.HOLDING, within=5.0)
     held = len(edges(sim))

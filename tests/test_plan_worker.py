@@ -160,16 +160,17 @@ def test_a_replan_that_would_start_against_the_motion_is_spliced_on(worker, worl
 
 def test_a_late_answer_is_never_taken_for_the_next_job(panda_cfg, stack, panda):
     answers = Answers()
-    # the parent gives up on each job 9.5 s before its deadline: a hopeless search is still running then
-    w = ProcessWorker(panda_cfg, seed=4, answer_margin=-9.5).start(answers.q.put)
+    # the parent gives up on each job 3.5 s before its deadline: a hopeless search is still running then, and on until
+    # its deadline (4 s: the test waits it out)
+    w = ProcessWorker(panda_cfg, seed=4, answer_margin=-3.5).start(answers.q.put)
     try:
         world = build_stack(panda_cfg, static=sleeve(panda), cameras=False).world
-        hopeless = answers.job(ARM_UP, ARM_FORWARD, deadline=10.0)
+        hopeless = answers.job(ARM_UP, ARM_FORWARD, deadline=4.0)
         w.submit(hopeless, world.snapshot())
         first = answers.next()
         assert first.job is hopeless and type(first.error) is PlanningError and "did not answer" in str(first.error)
         goal = ARM_UP + np.r_[0.2, 0, 0, 0, 0, 0, 0]  # a free straight line, answered at once
-        easy = answers.job(ARM_UP, goal, deadline=40.0)  # waited for 30.5 s: the hopeless search ends first
+        easy = answers.job(ARM_UP, goal, deadline=40.0)  # waited for 36.5 s: the hopeless search ends first
         w.submit(easy, world.snapshot())
         second = answers.next()  # the child first finishes the hopeless search: its answer must be dropped
         assert second.job is easy and second.error is None

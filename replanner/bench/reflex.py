@@ -159,8 +159,8 @@ POINTS = (  # Baumgartner and Klančar's points of interest: a point on each mov
 
 
 def kernel_timing(cfg: ReplannerConfig, *, seed: int = 0, n: int = 200, spec: KernelSpec | None = None) -> dict:
-    """Seed 001: ms per update (grid from the person frame's voxels once; per update: the points of interest, their
-    avoidance velocities, the joint velocities of equation 3) at 10 mm."""
+    """Baumgartner and Klančar's kernels: ms per update (grid from the person frame's voxels once; per update: the
+    points of interest, their avoidance velocities, the joint velocities of equation 3) at 10 mm."""
     robot = RobotModel.from_config(cfg.robot)
     rng = np.random.default_rng(seed)
     q = robot.home + rng.uniform(-0.15, 0.15, robot.dof)

@@ -302,11 +302,11 @@ class Controller:
         self.worker.submit(self._job, self.checker.world.snapshot())
 
     def _separation(self, purpose: JobPurpose, now: float, land: float | None) -> SeparationPlan | None:
-        """A replan, and a plan from a held arm, keep speed and separation from the map (the monitor's T_r, the time
-        until the path runs: its landing, or the time plans have been taking); a goal's first plan keeps its padding."""
-        if purpose is JobPurpose.GOAL or not self.monitor.speed_checks:
+        """Every plan keeps speed and separation from the map when the monitor watches it (the monitor's T_r, the time
+        until the path runs: its landing, or the time plans have been taking)."""
+        if not self.monitor.speed_checks or not self.cfg.speed_separation.plans:
             return None
-        after = land - now if land is not None else self.latency.plan_time(now, self.cfg.replan_deadline)
+        after = land - now if land is not None else self.latency.rest_answer(now, self.cfg.replan_deadline)
         lat = self.latency
         return SeparationPlan(self.cfg.speed_separation, lat.reaction_time(now), lat.joint_state_age(now), after)
 
@@ -321,6 +321,8 @@ class Controller:
         self._job, now = None, self.clock()
         if job.land is not None:
             self.latency.plan_answered(now, job.requested, job.deadline, answer.result and answer.result.total_time)
+        else:
+            self.latency.answered_at_rest(now, job.requested)
         if answer.error is None and job.land is not None and now > job.land - 0.002:
             late = TrajectoryError(f"the plan arrived {now - job.land:.3f} s after its landing time")
             answer = PlanAnswer(job, error=late)

@@ -71,9 +71,18 @@ class Hold:
             self.clear_count = 0
         if now - self.since > self.cfg.hold_timeout:
             return Decision(Act.GIVE_UP, f"blocked for {self.cfg.hold_timeout} s")
-        if room and not (moving or clear) and not planning and now - self.planned > self._wait():
+        # blocked, or held by people near its own path: a new path from rest may keep them at their distance
+        if (
+            room
+            and not moving
+            and (refused is not None or not clear)
+            and not planning
+            and now - self.planned > self._wait()
+        ):
             self.planned = now
-            return Decision(Act.PLAN_AROUND, "blocked, and room to move")
+            return Decision(
+                Act.PLAN_AROUND, "blocked, and room to move" if refused is None else f"{refused}: a way round"
+            )
         return Decision(Act.KEEP_HOLDING, refused or self._waits_for(moving, room, clear, planning))
 
     def plan_failed(self, err: Exception) -> Decision:

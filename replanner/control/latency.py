@@ -23,6 +23,7 @@ STAGES = (
     "check_gap",
     "plan_overrun",
     "replan_plan",
+    "rest_answer",
 )
 LEAD_PERCENTILE = 90.0  # of plan overruns a replan's landing time allows for
 MAX_EXTRA_LEAD = 0.25  # [s] beyond the configured margin: later than that, braking is the better answer
@@ -119,10 +120,15 @@ class LatencyAccount:
             if took is not None:
                 self.stages["replan_plan"].add(now, took)
 
-    def plan_time(self, now: float, default: float) -> float:
-        """[s] a replan's plan has been taking: the `percentile` of the window, `default` without samples."""
+    def answered_at_rest(self, now: float, asked: float) -> None:
+        """A plan from rest, asked at `asked`, answered at `now`: its path runs about then."""
         with self._lock:
-            took = self.stages["replan_plan"].values(now)
+            self.stages["rest_answer"].add(now, now - asked)
+
+    def rest_answer(self, now: float, default: float) -> float:
+        """[s] from asking a plan from rest to its answer: the `percentile` of the window, `default` without any."""
+        with self._lock:
+            took = self.stages["rest_answer"].values(now)
         return float(np.percentile(took, self.percentile)) if len(took) else default
 
     def landing_margin(self, now: float, margin: float) -> float:

@@ -1,6 +1,7 @@
 """The monitor: reads the motion from the measured state and runs its checks; the state machine decides.
 
-Paper 002: a fast boolean check of the remaining path while MONITORING, distances while a replan is pending.
+As in the KineoWorks reactive-planning paper: a fast boolean check of the remaining path while MONITORING,
+distances while a replan is pending.
 Here the path checks (map, scene) run in every moving state; the close checks (safety distance, stop region)
 while a replan is pending, when the arm moves towards something known to be in its way.
 """

@@ -180,7 +180,12 @@ def plan_and_time(
     """The work of a job: a path from its start, then timed from rest or spliced onto its base at `land` (the path
     told the base's motion there: one that would start against it cannot be spliced on). A job with `separation`
     keeps S_p from the map's voxels: its search keeps the margin at rest, its timing the speed each stretch allows."""
-    guard, margin = _separation(planner, gen, job)
+    try:
+        guard, margin = _separation(planner, gen, job)
+    except SeparationInfeasible:
+        if job.purpose is not JobPurpose.GOAL:
+            raise
+        guard, margin = None, 0.0  # a goal's first plan keeps its padding: the monitor holds the arm till there is room
     res = planner.plan(
         job.start,
         job.q_goal,

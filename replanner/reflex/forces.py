@@ -1,4 +1,4 @@
-"""Seed 000 (virtual forces for whole-arm avoidance, its Algorithm 1) on two CPU cores.
+"""The GPU potential-field paper's virtual forces for whole-arm avoidance (its Algorithm 1) on two CPU cores.
 
 The robot is a vertex model (points on each link's collision surface); the environment a voxel map made from a
 depth cloud (points inside the bounds, the robot's own voxels removed, voxels with too few neighbours removed).

@@ -1,5 +1,5 @@
-"""Seed 001 (directional convolution kernels on a voxel grid): avoidance velocities at points of interest on the
-arm, mapped to joint velocities in the nullspace of the end-effector's task (its equations 1-6).
+"""Baumgartner and Klančar's directional convolution kernels on a voxel grid: avoidance velocities at points of
+interest on the arm, mapped to joint velocities in the nullspace of the end-effector's task (its equations 1-6).
 
 A kernel for axis d samples the grid at L points along d and W x W across it around the point of interest. Along
 d its values are antisymmetric, largest next to the point (no zero at its middle: the point lies between the two
