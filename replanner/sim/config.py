@@ -17,13 +17,14 @@ Range = tuple[float, float]
 
 
 class NoiseConfig(Section):
-    """A structured-light camera's faults (Kinect-like): what the perception's filters must cope with."""
+    """A structured-light camera's faults (Kinect-like): what the perception's filters must cope with. Off unless a
+    cell's config turns them on (configs/demo.yaml does)."""
 
-    depth_sigma: float = Field(0.002, ge=0.0, le=0.1, description="Depth noise at 1 m, growing with range^2 [m].")
-    dropout: float = Field(0.01, ge=0.0, le=0.5, description="Share of pixels with no return.")
-    outliers: float = Field(0.0005, ge=0.0, le=0.1, description="Share of pixels at a random depth.")
+    depth_sigma: float = Field(0.0, ge=0.0, le=0.1, description="Depth noise at 1 m, growing with range^2 [m].")
+    dropout: float = Field(0.0, ge=0.0, le=0.5, description="Share of pixels with no return.")
+    outliers: float = Field(0.0, ge=0.0, le=0.1, description="Share of pixels at a random depth.")
     flying: float = Field(
-        0.5,
+        0.0,
         ge=0.0,
         le=1.0,
         description="Share of pixels at a depth edge (a 5 % jump to a neighbour) that return a depth between the "
