@@ -128,8 +128,9 @@ def test_a_plan_keeps_the_protective_distance_at_the_speed_it_is_timed_at(cell, 
 
 
 def test_a_path_that_would_come_too_close_is_never_handed_out(cell, panda_cfg):
-    """A start closer to the forearm than an arm at rest may be, or a goal beside it: no trajectory, a reason; the
-    same plans without speed and separation go through (only the padding is kept)."""
+    """A start closer to the forearm than an arm at rest may be, or a goal beside it: no trajectory for a replan or
+    a plan from a held arm, a reason; the same plans without speed and separation go through (only the padding is
+    kept), and so does a goal's first plan."""
     stack, _ = cell
     ssm = panda_cfg.controller.speed_separation
     plan = SeparationPlan(ssm, reaction_time=0.07, joint_state_age=0.008, start_after=0.05)
@@ -146,4 +147,7 @@ def test_a_path_that_would_come_too_close_is_never_handed_out(cell, panda_cfg):
         assert "separation" in str(err.value) or "goal" in str(err.value), err.value
         traj, _ = plan_and_time(stack.planner, stack.generator, PlanJob(2, JobPurpose.HOLD, LEFT, RIGHT, 1.0))
         assert traj.caps is None
+        # a goal's first plan keeps its padding instead: the monitor holds the arm until there is room
+        goal = PlanJob(3, JobPurpose.GOAL, LEFT, RIGHT, 1.0, separation=plan)
+        assert plan_and_time(stack.planner, stack.generator, goal)[0].caps is None
     stack.world.set_occupancy(None)

@@ -255,6 +255,7 @@ def stopping(v, A, J):
 COARSE = 0.04  # [m] the cells of the map far from the arm (see SeparationCaps._distance)
 NEAR = 0.05  # [m] beyond S_p at rest, distances to the map are exact
 SLACK = 0.1  # [m] looked beyond what limits the speed: what the samples' covering margin adds
+MAX_MARGIN = 0.9  # [m] the most a search keeps from the map beyond its padding
 MARGIN_STEP = 0.02  # [m] a plan's map margin is a multiple of this: few margins, each one's geometry built once
 
 
@@ -330,7 +331,8 @@ class SeparationCaps:
         search's motions checked at points, rounded up to MARGIN_STEP (padded geometry is built per margin)."""
         slack = self.occ.resolution * math.sqrt(3) / 2 + self._surface.margin() + 0.01
         need = self.at_rest() + slack - self.checker.map_padding
-        return max(0.0, math.ceil(need / MARGIN_STEP) * MARGIN_STEP)
+        # at most MAX_MARGIN: a path that needs more comes closer than S_p somewhere and its timing refuses it
+        return min(max(0.0, math.ceil(need / MARGIN_STEP) * MARGIN_STEP), MAX_MARGIN)
 
     def protective(self, v, r, A, J):
         """S_p [m] at path speeds v, the fastest surface point moving r [m] per unit of s, all of it toward the person,

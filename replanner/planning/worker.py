@@ -30,7 +30,7 @@ from ..trajectory import Trajectory, TrajectoryGenerator
 from ..trajectory.timelaw import SpeedCaps
 from ..world.scene import WorldSnapshot
 from .planner import Planner
-from .types import PlanningError, PlanResult, SeparationInfeasible
+from .types import PlanningCanceled, PlanningError, PlanResult, SeparationInfeasible
 
 log = logging.getLogger(__name__)
 
@@ -180,12 +180,20 @@ def plan_and_time(
     """The work of a job: a path from its start, then timed from rest or spliced onto its base at `land` (the path
     told the base's motion there: one that would start against it cannot be spliced on). A job with `separation`
     keeps S_p from the map's voxels: its search keeps the margin at rest, its timing the speed each stretch allows."""
-    try:
-        guard, margin = _separation(planner, gen, job)
-    except SeparationInfeasible:
-        if job.purpose is not JobPurpose.GOAL:
+    if job.separation is not None:
+        try:
+            return _plan_and_time(planner, gen, job, cancel, _separation(planner, gen, job))
+        except PlanningCanceled:
             raise
-        guard, margin = None, 0.0  # a goal's first plan keeps its padding: the monitor holds the arm till there is room
+        except PlanningError:
+            if job.purpose is not JobPurpose.GOAL:
+                raise
+            # a goal's first plan keeps its padding when no path keeps S_p: the monitor holds the arm till there is room
+    return _plan_and_time(planner, gen, job, cancel, (None, 0.0))
+
+
+def _plan_and_time(planner, gen, job, cancel, separation) -> tuple[Trajectory, PlanResult]:
+    guard, margin = separation
     res = planner.plan(
         job.start,
         job.q_goal,
