@@ -137,7 +137,7 @@ class SpeedSeparationCheck(Check):
     ):
         self.checker, self.gen, self.cfg = checker, generator, cfg
         self.reaction_time, self.joint_state_age = reaction_time, joint_state_age
-        self._samples: dict[int, tuple[Shape, np.ndarray, float]] = {}
+        self._surface = _Surface(checker, cfg.point_spacing)
         self.last: SeparationTerms | None = None  # the terms of the last verdict (status and tests read them)
         self.last_separation: float | None = None
         self._points(checker.robot.home[None])  # sample the bodies now: the first check must not stall
@@ -149,13 +149,7 @@ class SpeedSeparationCheck(Check):
         local, owner, balls, margin = [], [], [], 0.0
         bodies = watched(self.checker, bp.links)
         for k, b in enumerate(bodies):
-            shape = bp.shapes[b]
-            hit = self._samples.get(id(shape))
-            if hit is None or hit[0] is not shape:
-                pts, gap = surface_points(shape, self.cfg.point_spacing)
-                c = (pts.min(axis=0) + pts.max(axis=0)) / 2
-                hit = (shape, pts, gap, c, float(np.linalg.norm(pts - c, axis=1).max()))
-                self._samples[id(shape)] = hit
+            hit = self._surface.sample(bp.shapes[b])
             local.append(hit[1])
             owner.append(np.full(len(hit[1]), k))
             T0 = bp.poses[0, b]
@@ -418,7 +412,7 @@ class _Surface:
         self.checker, self.spacing = checker, spacing
         self._samples: dict[int, tuple] = {}
 
-    def _sample(self, shape: Shape) -> tuple:
+    def sample(self, shape: Shape) -> tuple:
         """(shape, points (n, 3), gap [m], ball centre (3,), ball radius [m]) in the body's frame, made once."""
         hit = self._samples.get(id(shape))
         if hit is None or hit[0] is not shape:
@@ -430,13 +424,13 @@ class _Surface:
     def margin(self) -> float:
         """[m] how far any surface point may be from the nearest sample (every body's, at its own spacing)."""
         bp = self.checker.body_poses(self.checker.robot.home)
-        return max(self._sample(bp.shapes[b])[2] for b in watched(self.checker, bp.links))
+        return max(self.sample(bp.shapes[b])[2] for b in watched(self.checker, bp.links))
 
     def points(self, Q: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
         """Surface points (N, n, 3) at configurations Q (N, dof), their covering margin [m], each point's body (n,)."""
         bp = self.checker.body_poses(Q)
         bodies = watched(self.checker, bp.links)
-        hits = [self._sample(bp.shapes[b]) for b in bodies]
+        hits = [self.sample(bp.shapes[b]) for b in bodies]
         L = np.vstack([h[1] for h in hits])
         idx = np.concatenate([np.full(len(h[1]), b) for b, h in zip(bodies, hits)])
         T = bp.poses[:, idx]
@@ -454,7 +448,7 @@ class _Surface:
         n = len(Q)
         bp = self.checker.body_poses(np.concatenate([Q, Q + eps * dQ]))
         bodies = watched(self.checker, bp.links)
-        hits = [self._sample(bp.shapes[b]) for b in bodies]
+        hits = [self.sample(bp.shapes[b]) for b in bodies]
         T0, T1 = bp.poses[:n, bodies], bp.poses[n:, bodies]
         local_c = np.array([h[3] for h in hits])
         R = np.array([h[4] for h in hits])
